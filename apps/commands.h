@@ -1,0 +1,13 @@
+#pragma once
+
+// The subcommands of the tetcosim command line; each adds itself to the app
+// and runs from its callback. Errors in user input are thrown as
+// tetcosim::Error and turned into a message and exit code 1 by main.
+
+#include <CLI/CLI.hpp>
+
+namespace tetcosim::app {
+
+void AddInfoCommand(CLI::App& app);
+
+}  // namespace tetcosim::app

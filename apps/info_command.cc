@@ -1,0 +1,78 @@
+// tetcosim info FILE [--json]: counts, size and element quality of a mesh.
+
+#include <cstdio>
+#include <nlohmann/json.hpp>
+
+#include "apps/commands.h"
+#include "mesh/mesh_io.h"
+#include "mesh/quality.h"
+
+namespace tetcosim::app {
+namespace {
+
+struct InfoOptions {
+  std::string file;
+  bool json = false;
+};
+
+void RunInfo(const InfoOptions& options) {
+  TetMesh mesh = LoadMesh(options.file);
+  for (const std::string& warning : mesh.warnings()) {
+    std::fprintf(stderr, "tetcosim: warning: %s: %s\n", mesh.source().c_str(), warning.c_str());
+  }
+  MeshQuality quality = ComputeQuality(mesh);
+  Eigen::Vector3d lo = mesh.bbox_min();
+  Eigen::Vector3d hi = mesh.bbox_max();
+  if (options.json) {
+    nlohmann::ordered_json out;
+    out["file"] = mesh.source();
+    out["vertices"] = mesh.num_vertices();
+    out["tetrahedra"] = mesh.num_tets();
+    out["surface_triangles"] = mesh.surface().rows();
+    out["surface_vertices"] = mesh.surface_vertices().size();
+    out["edges"] = mesh.edges().rows();
+    out["volume"] = mesh.total_volume();
+    out["bbox_min"] = {lo.x(), lo.y(), lo.z()};
+    out["bbox_max"] = {hi.x(), hi.y(), hi.z()};
+    out["average_edge_length"] = mesh.average_edge_length();
+    out["flipped_tetrahedra"] = mesh.num_flipped();
+    out["quality"] = {{"min_dihedral_deg", quality.min_dihedral_deg},
+                      {"max_dihedral_deg", quality.max_dihedral_deg},
+                      {"min_radius_ratio", quality.min_radius_ratio},
+                      {"mean_radius_ratio", quality.mean_radius_ratio}};
+    out["warnings"] = mesh.warnings();
+    std::printf("%s\n", out.dump(2).c_str());
+    return;
+  }
+  std::printf("file                 %s\n", mesh.source().c_str());
+  std::printf("vertices             %d (%zu on the surface)\n", mesh.num_vertices(),
+              mesh.surface_vertices().size());
+  std::printf("tetrahedra           %d (%d flipped to positive volume)\n", mesh.num_tets(),
+              mesh.num_flipped());
+  std::printf("surface triangles    %ld\n", static_cast<long>(mesh.surface().rows()));
+  std::printf("edges                %ld\n", static_cast<long>(mesh.edges().rows()));
+  std::printf("volume               %.6g\n", mesh.total_volume());
+  std::printf("bounding box         [%.6g, %.6g, %.6g] .. [%.6g, %.6g, %.6g]\n", lo.x(), lo.y(),
+              lo.z(), hi.x(), hi.y(), hi.z());
+  std::printf("average edge length  %.6g\n", mesh.average_edge_length());
+  std::printf("dihedral angles      %.2f .. %.2f degrees\n", quality.min_dihedral_deg,
+              quality.max_dihedral_deg);
+  std::printf("radius ratio         min %.4f, mean %.4f (1 = regular)\n", quality.min_radius_ratio,
+              quality.mean_radius_ratio);
+}
+
+}  // namespace
+
+void AddInfoCommand(CLI::App& app) {
+  auto options = std::make_shared<InfoOptions>();
+  CLI::App* info = app.add_subcommand(
+      "info", "Print counts, volume, bounding box and element quality of a tetrahedral mesh");
+  info->add_option("file", options->file,
+                   "Mesh file (.msh, .node/.ele, .vtk) or shape spec such as "
+                   "sphere:size=0.1:res=1")
+      ->required();
+  info->add_flag("--json", options->json, "Print JSON instead of text");
+  info->callback([options] { RunInfo(*options); });
+}
+
+}  // namespace tetcosim::app

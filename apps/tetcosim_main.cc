@@ -1,0 +1,31 @@
+// tetcosim: soft tetrahedral bodies with MuJoCo rigid bodies and robots.
+
+#include <cstdio>
+#include <exception>
+
+#include "apps/commands.h"
+#include "mesh/error.h"
+#include "mujoco_bridge/mujoco_version.h"
+
+int main(int argc, char** argv) {
+  CLI::App app{
+      "tetcosim: soft tetrahedral bodies (co-rotational FEM, consistent penetration "
+      "depth) with MuJoCo rigid bodies and robots"};
+  app.set_version_flag("--version", [] {
+    return std::string("tetcosim 0.1.0 (MuJoCo ") + tetcosim::MujocoVersion() + ")";
+  });
+  app.require_subcommand(1);
+  tetcosim::app::AddInfoCommand(app);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  } catch (const tetcosim::Error& e) {
+    std::fprintf(stderr, "tetcosim: error: %s\n", e.what());
+    return 1;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "tetcosim: internal error: %s\n", e.what());
+    return 3;
+  }
+  return 0;
+}

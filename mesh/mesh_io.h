@@ -1,0 +1,65 @@
+#pragma once
+
+// Reading and writing tetrahedral meshes.
+//
+// Readers (all return an unvalidated RawMesh; TetMesh::Build validates):
+//   Gmsh MSH 2.2 and 4.1, ASCII and binary (.msh)
+//   TetGen .node + .ele, 0- or 1-based, with attributes and boundary markers
+//   legacy VTK unstructured grid, ASCII, versions 2 to 5.1 (.vtk; cell type 10)
+// Writers:
+//   VTK XML unstructured grid (.vtu) and legacy VTK (.vtk), ASCII, with
+//   optional per-point and per-cell data arrays; readable by ParaView and
+//   meshio. Files are written to a temporary name and renamed, so a reader
+//   never sees half a file.
+
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "mesh/tet_mesh.h"
+
+namespace tetcosim {
+
+enum class MeshFormat { kGmsh, kTetGen, kVtkLegacy };
+
+// Reads any supported format, chosen by extension (.msh, .node/.ele, .vtk)
+// or, failing that, by the file's first bytes. Throws Error for a missing,
+// unreadable, truncated or malformed file, naming the file and line.
+RawMesh ReadRawMesh(const std::string& path);
+
+// ReadRawMesh, then TetMesh::Build.
+TetMesh ReadTetMesh(const std::string& path, const TetMeshOptions& options = {});
+
+// A mesh from a file name or a generator spec such as "sphere:size=0.1:res=1"
+// (see generators.h).
+TetMesh LoadMesh(const std::string& file_or_spec, const TetMeshOptions& options = {});
+
+// The individual readers, on content already in memory (path is for messages).
+RawMesh ReadGmsh(const std::string& path, std::string_view content);
+RawMesh ReadVtkLegacy(const std::string& path, std::string_view content);
+// node_path and ele_path name the two TetGen files.
+RawMesh ReadTetGen(const std::string& node_path, std::string_view node_content,
+                   const std::string& ele_path, std::string_view ele_content);
+
+// A named data array: `components` values per point or per cell, flattened.
+struct DataArray {
+  std::string name;
+  int components = 1;
+  std::vector<double> values;  // #points (or #cells) * components
+};
+
+struct VtkData {
+  std::vector<DataArray> point_data;
+  std::vector<DataArray> cell_data;
+};
+
+// Writes positions (#V x 3) and tets (#T x 4) as an unstructured grid of
+// cell type 10 (VTK_TETRA). .vtu for XML, anything else legacy. Throws Error
+// if the file cannot be written or an array has the wrong size.
+void WriteVtk(const std::string& path, const Positions& positions, const Tets& tets,
+              const VtkData& data = {});
+
+// Writes content to path through a temporary file and a rename.
+void WriteFileAtomically(const std::string& path, std::string_view content);
+
+}  // namespace tetcosim

@@ -1,0 +1,8 @@
+// A coarse L-shape with a physical volume tag 7 (only physical elements are saved).
+SetFactory("OpenCASCADE");
+Box(1) = {0, 0, 0, 0.1, 0.1, 0.04};
+Box(2) = {0.05, 0.05, -0.01, 0.06, 0.06, 0.06};
+BooleanDifference(3) = {Volume{1}; Delete;}{Volume{2}; Delete;};
+Physical Volume("body", 7) = {3};
+Mesh.CharacteristicLengthMin = 0.03;
+Mesh.CharacteristicLengthMax = 0.03;

@@ -1,0 +1,140 @@
+// Every reader on files made by the real tools (scripts/make-test-data), with
+// counts and volumes checked against python3-meshio's reading of the same
+// files (tests/data/reference.tsv).
+
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "mesh/mesh_io.h"
+#include "mesh/text_reader.h"
+#include "tests/support/mesh_checks.h"
+
+namespace tetcosim {
+namespace {
+
+const std::string kData = TETCOSIM_TEST_DATA_DIR;
+
+struct Reference {
+  std::string file;
+  int vertices;
+  int tets;
+  double volume;
+};
+
+std::vector<Reference> LoadReference() {
+  std::ifstream in(kData + "/reference.tsv");
+  std::string line;
+  std::getline(in, line);  // header
+  std::vector<Reference> rows;
+  while (std::getline(in, line)) {
+    std::istringstream fields(line);
+    Reference r;
+    fields >> r.file >> r.vertices >> r.tets >> r.volume;
+    rows.push_back(r);
+  }
+  return rows;
+}
+
+TEST(Readers, AgreeWithMeshio) {
+  std::vector<Reference> rows = LoadReference();
+  ASSERT_GE(rows.size(), 10u);
+  for (const Reference& r : rows) {
+    SCOPED_TRACE(r.file);
+    TetMesh mesh = ReadTetMesh(kData + "/" + r.file);
+    EXPECT_EQ(mesh.num_vertices(), r.vertices);
+    EXPECT_EQ(mesh.num_tets(), r.tets);
+    EXPECT_NEAR(mesh.total_volume(), r.volume, 1e-12 * r.volume);
+    EXPECT_TRUE(testing::IsClosedOrientedSurface(mesh));
+  }
+}
+
+TEST(Readers, GmshVariantsOfOneMeshAreIdentical) {
+  RawMesh reference = ReadRawMesh(kData + "/sphere_msh22_ascii.msh");
+  for (const char* file : {"sphere_msh22_binary.msh", "sphere_msh41_ascii.msh",
+                           "sphere_msh41_binary.msh", "sphere_meshio51.vtk"}) {
+    SCOPED_TRACE(file);
+    RawMesh other = ReadRawMesh(kData + "/" + file);
+    // ASCII files carry 16 significant digits, binary ones all 17
+    ASSERT_EQ(other.positions.rows(), reference.positions.rows());
+    EXPECT_LT((other.positions - reference.positions).cwiseAbs().maxCoeff(), 1e-16);
+    EXPECT_EQ(other.tets, reference.tets);
+  }
+}
+
+TEST(Readers, PhysicalTagsAreKept) {
+  for (const char* file : {"lshape_msh22_ascii.msh", "lshape_msh41_binary.msh"}) {
+    SCOPED_TRACE(file);
+    TetMesh mesh = ReadTetMesh(kData + "/" + file);
+    ASSERT_EQ(mesh.tet_tags().size(), static_cast<size_t>(mesh.num_tets()));
+    for (int tag : mesh.tet_tags()) EXPECT_EQ(tag, 7);
+  }
+}
+
+TEST(Readers, TetGenRegionAttributesAndEitherFileName) {
+  TetMesh by_ele = ReadTetMesh(kData + "/sphere_tetgen0.ele");
+  TetMesh by_node = ReadTetMesh(kData + "/sphere_tetgen0.node");
+  TetMesh by_base = ReadTetMesh(kData + "/sphere_tetgen0");
+  EXPECT_EQ(by_ele.tets(), by_node.tets());
+  EXPECT_EQ(by_ele.tets(), by_base.tets());
+  EXPECT_EQ(by_ele.tet_tags().size(), static_cast<size_t>(by_ele.num_tets()));
+  EXPECT_TRUE(ReadTetMesh(kData + "/sphere_tetgen1.ele").tet_tags().empty());
+}
+
+TEST(Readers, TetGenWithAttributesMarkersAndComments) {
+  // one-based, two point attributes and a boundary marker, region attribute
+  const std::string node =
+      "# a hand-written TetGen file\n"
+      "5 3 2 1\n"
+      "1  0 0 0   0.5 7  1\n"
+      "2  1 0 0   0.5 7  1\n"
+      "3  0 1 0   0.5 7  1  # trailing comment\n"
+      "4  0 0 1   0.5 7  1\n"
+      "5  1 1 1   0.5 7  1\n";
+  const std::string ele =
+      "2 4 1\n"
+      "1  1 2 3 4  3\n"
+      "2  2 3 4 5  4\n";
+  RawMesh raw = ReadTetGen("t.node", node, "t.ele", ele);
+  TetMesh mesh = TetMesh::Build(raw);
+  EXPECT_EQ(mesh.num_vertices(), 5);
+  EXPECT_EQ(mesh.tet_tags(), (std::vector<int>{3, 4}));
+  EXPECT_NEAR(mesh.total_volume(), 1.0 / 6.0 + 1.0 / 3.0, 1e-15);
+}
+
+TEST(Readers, GmshNonContiguousNodeTagsAndSeveralBlocks) {
+  // MSH 4.1 ASCII with two node blocks, tags 10.. and 100.., a line element
+  // and a triangle to skip, and tetrahedra in two element blocks
+  const std::string msh =
+      "$MeshFormat\n4.1 0 8\n$EndMeshFormat\n"
+      "$Nodes\n2 5 10 102\n"
+      "3 1 0 3\n10\n11\n12\n0 0 0\n1 0 0\n0 1 0\n"
+      "3 1 0 2\n101\n102\n0 0 1\n1 1 1\n"
+      "$EndNodes\n"
+      "$Elements\n4 4 1 9\n"
+      "1 1 1 1\n1 10 11\n"
+      "2 1 2 1\n2 10 11 12\n"
+      "3 1 4 1\n7 10 11 12 101\n"
+      "3 2 4 1\n9 11 12 101 102\n"
+      "$EndElements\n";
+  RawMesh raw = ReadGmsh("inline.msh", msh);
+  EXPECT_EQ(raw.element_ids, (std::vector<long>{7, 9}));
+  TetMesh mesh = TetMesh::Build(raw);
+  EXPECT_EQ(mesh.num_tets(), 2);
+  EXPECT_EQ(mesh.node_ids(), (std::vector<long>{10, 11, 12, 101, 102}));
+}
+
+TEST(Readers, BundledModelMeshesRead) {
+  for (const char* file : {"sphere.msh", "torus.msh", "lshape.msh", "blob.msh"}) {
+    SCOPED_TRACE(file);
+    TetMesh mesh = ReadTetMesh(std::string(TETCOSIM_SOURCE_DIR) + "/models/meshes/" + file);
+    EXPECT_GT(mesh.num_tets(), 500);
+    EXPECT_TRUE(testing::IsClosedOrientedSurface(mesh));
+    EXPECT_EQ(testing::SurfaceEulerCharacteristic(mesh), std::string(file) == "torus.msh" ? 0 : 2);
+  }
+}
+
+}  // namespace
+}  // namespace tetcosim

@@ -1,0 +1,124 @@
+#include "mesh/tet_mesh.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+
+#include "mesh/error.h"
+#include "mesh/generators.h"
+#include "tests/support/mesh_checks.h"
+
+namespace tetcosim {
+namespace {
+
+RawMesh UnitTet() {
+  RawMesh raw;
+  raw.source = "unit-tet";
+  raw.positions.resize(4, 3);
+  raw.positions << 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1;
+  raw.tets.resize(1, 4);
+  raw.tets << 0, 1, 2, 3;
+  return raw;
+}
+
+TEST(TetMesh, SingleTetrahedronDerivedData) {
+  TetMesh mesh = TetMesh::Build(UnitTet());
+  EXPECT_EQ(mesh.num_vertices(), 4);
+  EXPECT_EQ(mesh.surface().rows(), 4);
+  EXPECT_EQ(mesh.edges().rows(), 6);
+  EXPECT_DOUBLE_EQ(mesh.total_volume(), 1.0 / 6.0);
+  EXPECT_EQ(mesh.surface_vertices().size(), 4u);
+  // every surface triangle's normal points away from the centroid
+  Eigen::Vector3d centroid = mesh.positions().colwise().mean().transpose();
+  for (Eigen::Index f = 0; f < 4; ++f) {
+    Eigen::Vector3d a = mesh.positions().row(mesh.surface()(f, 0));
+    Eigen::Vector3d b = mesh.positions().row(mesh.surface()(f, 1));
+    Eigen::Vector3d c = mesh.positions().row(mesh.surface()(f, 2));
+    EXPECT_GT((b - a).cross(c - a).dot((a + b + c) / 3.0 - centroid), 0.0);
+  }
+  // every vertex of a tetrahedron is adjacent to the three others
+  for (int v = 0; v < 4; ++v) {
+    EXPECT_EQ(mesh.adjacency_offsets()[v + 1] - mesh.adjacency_offsets()[v], 3);
+  }
+  // area-weighted normal at the origin: the three coordinate faces have equal
+  // area, so it points along -(1, 1, 1)
+  EXPECT_TRUE(mesh.vertex_normals().row(0).isApprox(-Eigen::RowVector3d::Ones().normalized()));
+  EXPECT_EQ(mesh.bbox_min(), Eigen::Vector3d::Zero());
+  EXPECT_EQ(mesh.bbox_max(), Eigen::Vector3d::Ones());
+  EXPECT_NEAR(mesh.average_edge_length(), (3.0 + 3.0 * std::sqrt(2.0)) / 6.0, 1e-15);
+}
+
+TEST(TetMesh, InvertedTetrahedraAreFlippedOrRejected) {
+  RawMesh raw = UnitTet();
+  raw.tets << 0, 2, 1, 3;  // negative volume
+  TetMesh mesh = TetMesh::Build(raw);
+  EXPECT_EQ(mesh.num_flipped(), 1);
+  EXPECT_GT(mesh.rest_volumes()[0], 0.0);
+  ASSERT_EQ(mesh.warnings().size(), 1u);
+  EXPECT_NE(mesh.warnings()[0].find("flipped"), std::string::npos);
+  TetMeshOptions strict;
+  strict.flip_inverted = false;
+  EXPECT_THROW(TetMesh::Build(raw, strict), Error);
+}
+
+TEST(TetMesh, UnreferencedVerticesAreDroppedWithAWarning) {
+  RawMesh raw = UnitTet();
+  raw.positions.conservativeResize(6, 3);
+  raw.positions.row(4) << 5, 5, 5;
+  raw.positions.row(5) = raw.positions.row(3);
+  raw.positions.row(3) << 9, 9, 9;
+  raw.tets << 0, 1, 2, 5;
+  raw.node_ids = {10, 11, 12, 13, 14, 15};
+  TetMesh mesh = TetMesh::Build(raw);
+  EXPECT_EQ(mesh.num_vertices(), 4);
+  EXPECT_DOUBLE_EQ(mesh.total_volume(), 1.0 / 6.0);
+  EXPECT_EQ(mesh.node_ids(), (std::vector<long>{10, 11, 12, 15}));
+  ASSERT_EQ(mesh.warnings().size(), 1u);
+  EXPECT_NE(mesh.warnings()[0].find("2 vertices"), std::string::npos);
+}
+
+TEST(TetMesh, AdjacencyMatchesEdgesAndIsSymmetric) {
+  TetMesh mesh = TetMesh::Build(MakeShape("torus:size=0.1,0.03:res=2"));
+  const auto& offsets = mesh.adjacency_offsets();
+  const auto& adjacency = mesh.adjacency();
+  EXPECT_EQ(adjacency.size(), 2 * static_cast<size_t>(mesh.edges().rows()));
+  auto adjacent = [&](int a, int b) {
+    return std::binary_search(adjacency.begin() + offsets[a], adjacency.begin() + offsets[a + 1],
+                              b);
+  };
+  for (Eigen::Index e = 0; e < mesh.edges().rows(); ++e) {
+    EXPECT_TRUE(adjacent(mesh.edges()(e, 0), mesh.edges()(e, 1)));
+    EXPECT_TRUE(adjacent(mesh.edges()(e, 1), mesh.edges()(e, 0)));
+  }
+  // vertex-tet incidence lists each tetrahedron at its four vertices
+  for (int v = 0; v < mesh.num_vertices(); ++v) {
+    for (int i = mesh.vertex_tet_offsets()[v]; i < mesh.vertex_tet_offsets()[v + 1]; ++i) {
+      auto tet = mesh.tets().row(mesh.vertex_tets()[i]);
+      EXPECT_TRUE((tet.array() == v).any());
+    }
+  }
+}
+
+TEST(TetMesh, SphereNormalsAreRadialAndInteriorNormalsZero) {
+  TetMesh mesh = TetMesh::Build(MakeShape("sphere:size=1:res=2"));
+  for (int v = 0; v < mesh.num_vertices(); ++v) {
+    Eigen::RowVector3d n = mesh.vertex_normals().row(v);
+    if (mesh.is_surface_vertex(v)) {
+      EXPECT_NEAR(n.norm(), 1.0, 1e-12);
+      EXPECT_GT(n.dot(mesh.positions().row(v).normalized()), 0.99);
+    } else {
+      EXPECT_EQ(n.norm(), 0.0);
+    }
+  }
+}
+
+TEST(TetMesh, SurfaceTetOwnsItsTriangle) {
+  TetMesh mesh = TetMesh::Build(MakeShape("capsule:size=0.1,0.1:res=3"));
+  for (Eigen::Index f = 0; f < mesh.surface().rows(); ++f) {
+    auto tet = mesh.tets().row(mesh.surface_tet()[f]);
+    for (int k = 0; k < 3; ++k) EXPECT_TRUE((tet.array() == mesh.surface()(f, k)).any());
+  }
+}
+
+}  // namespace
+}  // namespace tetcosim
