@@ -65,8 +65,8 @@ INSTANTIATE_TEST_SUITE_P(
         ShapeCase{"capsule:size=0.1,0.0001:res=4", 2, 4.0 / 3.0 * kPi * 1e-3, 0.1},
         ShapeCase{"torus:size=0.1,0.03:res=4", 0, 2 * kPi* kPi * 0.1 * 0.03 * 0.03, 0.05},
         ShapeCase{"torus:size=0.1,0.03:res=1", 0, 2 * kPi* kPi * 0.1 * 0.03 * 0.03, 0.45}),
-    [](const ::testing::TestParamInfo<ShapeCase>& info) {
-      std::string name = info.param.spec;
+    [](const ::testing::TestParamInfo<ShapeCase>& param_info) {
+      std::string name = param_info.param.spec;
       for (char& c : name) {
         if (!std::isalnum(static_cast<unsigned char>(c))) c = '_';
       }

@@ -1,0 +1,646 @@
+#include "collision/penetration.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <cassert>
+#include <chrono>
+#include <cmath>
+#include <limits>
+
+#include "collision/geometry.h"
+
+namespace tetcosim {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double SecondsSince(Clock::time_point start) {
+  return std::chrono::duration<double>(Clock::now() - start).count();
+}
+
+// Triangles whose bounding box covers more cells than this are not hashed but
+// tested against every query (large faces of coarse rigid proxies).
+constexpr long kMaxTriangleCells = 64;
+// Tetrahedra whose bounding box covers more cells than this test candidate
+// vertices directly instead of cell by cell.
+constexpr long kMaxTetCells = 512;
+
+long CellCount(const Eigen::Vector3i& lo, const Eigen::Vector3i& hi) {
+  long count = 1;
+  for (int a = 0; a < 3; ++a) count *= static_cast<long>(hi[a]) - lo[a] + 1;
+  return count;
+}
+
+}  // namespace
+
+const char* DepthMethodName(DepthMethod method) {
+  return method == DepthMethod::kConsistent ? "consistent" : "closest";
+}
+
+const char* DepthSourceName(DepthSource source) {
+  switch (source) {
+    case DepthSource::kBorder:
+      return "border";
+    case DepthSource::kPropagated:
+      return "propagated";
+    case DepthSource::kFallback:
+      return "fallback";
+    case DepthSource::kClosest:
+      return "closest";
+  }
+  return "?";
+}
+
+PenetrationSolver::PenetrationSolver(PenetrationOptions options) : options_(options) {}
+
+Eigen::Vector3d PenetrationSolver::Position(int global_vertex) const {
+  int object = vertex_object_[global_vertex];
+  return positions_[object]->row(global_vertex - vertex_offset_[object]).transpose();
+}
+
+int PenetrationSolver::FindHit(int vertex, int penetrated) const {
+  for (int h = hit_offset_[vertex]; h < hit_offset_[vertex + 1]; ++h) {
+    if (hits_[h].penetrated == penetrated) return h;
+  }
+  return -1;
+}
+
+const std::vector<PenetrationResult>& PenetrationSolver::Solve(
+    std::span<const CollisionObject> objects) {
+  Clock::time_point start = Clock::now();
+  timings_ = {};
+  stats_ = {};
+  Prepare(objects);
+  FindCollidingPoints(objects);
+  HashSurfaces(objects);
+  if (options_.method == DepthMethod::kConsistent) {
+    FindCrossings(objects);
+    ComputeBorderPoints(objects);
+    Propagate(objects);
+    if (options_.fallback) ComputeClosest(objects, /*all=*/false);
+  } else {
+    ComputeClosest(objects, /*all=*/true);
+  }
+  CollectResults(objects);
+  timings_.total = SecondsSince(start);
+  return results_;
+}
+
+// global numbering of vertices, current normals, cell size
+void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
+  const int num_objects = static_cast<int>(objects.size());
+  vertex_offset_.resize(num_objects + 1);
+  vertex_offset_[0] = 0;
+  positions_.resize(num_objects);
+  normals_.resize(num_objects);
+  double edge_sum = 0.0;
+  long edge_count = 0;
+  for (int o = 0; o < num_objects; ++o) {
+    const CollisionObject& object = objects[o];
+    assert(object.mesh != nullptr && object.positions != nullptr);
+    assert(object.positions->rows() == object.mesh->num_vertices());
+    vertex_offset_[o + 1] = vertex_offset_[o] + object.mesh->num_vertices();
+    positions_[o] = object.positions;
+    edge_sum +=
+        object.mesh->average_edge_length() * static_cast<double>(object.mesh->edges().rows());
+    edge_count += object.mesh->edges().rows();
+  }
+  const int num_vertices = vertex_offset_[num_objects];
+  vertex_object_.resize(num_vertices);
+  for (int o = 0; o < num_objects; ++o) {
+    std::fill(vertex_object_.begin() + vertex_offset_[o],
+              vertex_object_.begin() + vertex_offset_[o + 1], o);
+  }
+  double cell = options_.cell_size > 0.0 ? options_.cell_size
+                : edge_count > 0         ? edge_sum / static_cast<double>(edge_count)
+                                         : 1.0;
+  hash_.Reset(cell, num_vertices);
+}
+
+// stage 1: every vertex inside a tetrahedron of another object
+void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> objects) {
+  Clock::time_point start = Clock::now();
+  const int num_objects = static_cast<int>(objects.size());
+  const int num_vertices = vertex_offset_[num_objects];
+  const int num_threads = std::max(1, options_.num_threads);
+  vertex_cell_.resize(num_vertices);
+#pragma omp parallel for num_threads(num_threads) schedule(static)
+  for (int g = 0; g < num_vertices; ++g) vertex_cell_[g] = hash_.CellOf(Position(g));
+  for (int g = 0; g < num_vertices; ++g) hash_.Insert(vertex_cell_[g], g);
+  timings_.hash += SecondsSince(start);
+
+  start = Clock::now();
+  bool any_deformable = false;
+  for (const CollisionObject& object : objects) any_deformable |= !object.rigid;
+  std::vector<int> tet_offset_storage;  // small: #objects + 1
+  tet_offset_storage.reserve(num_objects + 1);
+  tet_offset_storage.push_back(0);
+  for (const CollisionObject& object : objects) {
+    tet_offset_storage.push_back(tet_offset_storage.back() + object.mesh->num_tets());
+  }
+  const int num_tets = tet_offset_storage.back();
+  if (static_cast<int>(thread_hits_.size()) < num_threads) thread_hits_.resize(num_threads);
+  for (auto& buffer : thread_hits_) buffer.clear();
+
+#pragma omp parallel num_threads(num_threads)
+  {
+    std::vector<Hit>& found = thread_hits_[omp_get_thread_num()];
+#pragma omp for schedule(dynamic, 256)
+    for (int gt = 0; gt < (any_deformable ? num_tets : 0); ++gt) {
+      int b = static_cast<int>(
+                  std::upper_bound(tet_offset_storage.begin(), tet_offset_storage.end(), gt) -
+                  tet_offset_storage.begin()) -
+              1;
+      int t = gt - tet_offset_storage[b];
+      const CollisionObject& object_b = objects[b];
+      const Positions& x = *object_b.positions;
+      const auto tet = object_b.mesh->tets().row(t);
+      Eigen::Vector3d corner[4];
+      for (int i = 0; i < 4; ++i) corner[i] = x.row(tet[i]).transpose();
+      Eigen::Vector3d lo = corner[0].cwiseMin(corner[1]).cwiseMin(corner[2].cwiseMin(corner[3]));
+      Eigen::Vector3d hi = corner[0].cwiseMax(corner[1]).cwiseMax(corner[2].cwiseMax(corner[3]));
+      auto test = [&](int g) {
+        int a = vertex_object_[g];
+        if (a == b) {
+          if (!object_b.self_collision) return;
+          int v = g - vertex_offset_[a];
+          if (v == tet[0] || v == tet[1] || v == tet[2] || v == tet[3]) return;
+        } else if (object_b.rigid && objects[a].rigid) {
+          return;
+        }
+        Eigen::Vector3d p = Position(g);
+        if ((p.array() < lo.array()).any() || (p.array() > hi.array()).any()) return;
+        Eigen::Vector4d l;
+        if (!TetBarycentric(corner[0], corner[1], corner[2], corner[3], p, l)) return;
+        if (l.minCoeff() >= 0.0) found.push_back({g, b, t, l});
+      };
+      Eigen::Vector3i cell_lo = hash_.CellOf(lo);
+      Eigen::Vector3i cell_hi = hash_.CellOf(hi);
+      if (CellCount(cell_lo, cell_hi) > kMaxTetCells) {
+        for (int g = 0; g < num_vertices; ++g) test(g);
+        continue;
+      }
+      for (int k = cell_lo.z(); k <= cell_hi.z(); ++k) {
+        for (int j = cell_lo.y(); j <= cell_hi.y(); ++j) {
+          for (int i = cell_lo.x(); i <= cell_hi.x(); ++i) {
+            Eigen::Vector3i cell(i, j, k);
+            // a bucket holds vertices of every cell hashed to it: keep only
+            // this cell's, which also visits each vertex once per tet
+            hash_.ForEach(cell, [&](int g) {
+              if (vertex_cell_[g] == cell) test(g);
+            });
+          }
+        }
+      }
+    }
+  }
+  // merge and sort: the order (and so the result) does not depend on threads
+  hits_.clear();
+  for (int i = 0; i < num_threads; ++i) {
+    hits_.insert(hits_.end(), thread_hits_[i].begin(), thread_hits_[i].end());
+  }
+  std::sort(hits_.begin(), hits_.end());
+  // one tetrahedron per (vertex, object): the one the vertex is deepest in
+  // (a vertex on a shared face or edge is inside several)
+  size_t kept = 0;
+  for (size_t i = 0; i < hits_.size();) {
+    size_t j = i;
+    size_t best = i;
+    while (j < hits_.size() && hits_[j].vertex == hits_[i].vertex &&
+           hits_[j].penetrated == hits_[i].penetrated) {
+      if (hits_[j].barycentric.minCoeff() > hits_[best].barycentric.minCoeff()) best = j;
+      ++j;
+    }
+    hits_[kept++] = hits_[best];
+    i = j;
+  }
+  hits_.resize(kept);
+  hit_offset_.assign(num_vertices + 1, 0);
+  for (const Hit& hit : hits_) ++hit_offset_[hit.vertex + 1];
+  for (int g = 0; g < num_vertices; ++g) hit_offset_[g + 1] += hit_offset_[g];
+  timings_.inside += SecondsSince(start);
+}
+
+// surface triangles of every penetrated object into the triangle hash, and
+// current vertex normals of those objects
+void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects) {
+  Clock::time_point start = Clock::now();
+  const int num_objects = static_cast<int>(objects.size());
+  object_penetrated_.assign(num_objects, 0);
+  for (const Hit& hit : hits_) object_penetrated_[hit.penetrated] = 1;
+  int num_triangles = 0;
+  for (int o = 0; o < num_objects; ++o) {
+    if (object_penetrated_[o]) num_triangles += static_cast<int>(objects[o].mesh->surface().rows());
+  }
+  triangle_hash_.Reset(hash_.cell_size(), num_triangles);
+  triangles_.clear();
+  triangle_lo_.clear();
+  triangle_hi_.clear();
+  large_triangles_.clear();
+  for (int o = 0; o < num_objects; ++o) {
+    if (!object_penetrated_[o]) continue;
+    const Positions& x = *objects[o].positions;
+    const Triangles& surface = objects[o].mesh->surface();
+    ComputeVertexNormals(x, surface, normals_[o]);
+    for (int f = 0; f < surface.rows(); ++f) {
+      Eigen::Vector3d a = x.row(surface(f, 0)), b = x.row(surface(f, 1)), c = x.row(surface(f, 2));
+      Eigen::Vector3i lo = triangle_hash_.CellOf(a.cwiseMin(b).cwiseMin(c));
+      Eigen::Vector3i hi = triangle_hash_.CellOf(a.cwiseMax(b).cwiseMax(c));
+      int entry = static_cast<int>(triangles_.size());
+      triangles_.push_back({o, f});
+      triangle_lo_.push_back(lo);
+      triangle_hi_.push_back(hi);
+      if (CellCount(lo, hi) > kMaxTriangleCells) {
+        large_triangles_.push_back(entry);
+        continue;
+      }
+      for (int k = lo.z(); k <= hi.z(); ++k) {
+        for (int j = lo.y(); j <= hi.y(); ++j) {
+          for (int i = lo.x(); i <= hi.x(); ++i) triangle_hash_.Insert({i, j, k}, entry);
+        }
+      }
+    }
+  }
+  timings_.hash += SecondsSince(start);
+}
+
+// stage 2: for every colliding point p and neighbour q outside B, the
+// crossing of the edge q -> p with B's surface nearest q
+void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) {
+  Clock::time_point start = Clock::now();
+  const int num_hits = static_cast<int>(hits_.size());
+  crossing_offset_.resize(num_hits + 1);
+  crossing_offset_[0] = 0;
+  for (int h = 0; h < num_hits; ++h) {
+    int g = hits_[h].vertex;
+    int a = vertex_object_[g];
+    int v = g - vertex_offset_[a];
+    const auto& offsets = objects[a].mesh->adjacency_offsets();
+    crossing_offset_[h + 1] = crossing_offset_[h] + offsets[v + 1] - offsets[v];
+  }
+  crossings_.resize(crossing_offset_[num_hits]);
+  int edges = 0;
+#pragma omp parallel for num_threads(std::max(1, options_.num_threads)) schedule(dynamic, 64) \
+    reduction(+ : edges)
+  for (int h = 0; h < num_hits; ++h) {
+    const Hit& hit = hits_[h];
+    const int a = vertex_object_[hit.vertex];
+    const int b = hit.penetrated;
+    const int v = hit.vertex - vertex_offset_[a];
+    const TetMesh& mesh_a = *objects[a].mesh;
+    const Positions& x_b = *objects[b].positions;
+    const Triangles& surface_b = objects[b].mesh->surface();
+    const Eigen::Vector3d p = Position(hit.vertex);
+    int slot = crossing_offset_[h];
+    for (int n = mesh_a.adjacency_offsets()[v]; n < mesh_a.adjacency_offsets()[v + 1];
+         ++n, ++slot) {
+      Crossing& crossing = crossings_[slot];
+      crossing.valid = false;
+      const int q_local = mesh_a.adjacency()[n];
+      const int q_global = vertex_offset_[a] + q_local;
+      if (FindHit(q_global, b) >= 0) continue;  // q is inside B too: not an intersection edge
+      ++edges;
+      const Eigen::Vector3d q = Position(q_global);
+      double best_t = std::numeric_limits<double>::infinity();
+      int best_entry = -1;
+      double best_u = 0.0, best_v = 0.0;
+      auto test = [&](int entry) {
+        if (triangles_[entry][0] != b) return;
+        const int f = triangles_[entry][1];
+        if (a == b) {  // self-collision: the edge's own triangles do not count
+          for (int k = 0; k < 3; ++k) {
+            if (surface_b(f, k) == v || surface_b(f, k) == q_local) return;
+          }
+        }
+        double t, u, w;
+        if (!SegmentTriangle(q, p, x_b.row(surface_b(f, 0)), x_b.row(surface_b(f, 1)),
+                             x_b.row(surface_b(f, 2)), t, u, w)) {
+          return;
+        }
+        // nearest to q; ties broken by entry for determinism
+        if (t < best_t || (t == best_t && entry < best_entry)) {
+          best_t = t;
+          best_entry = entry;
+          best_u = u;
+          best_v = w;
+        }
+      };
+      for (int entry : large_triangles_) test(entry);
+      Eigen::Vector3i lo = triangle_hash_.CellOf(q.cwiseMin(p));
+      Eigen::Vector3i hi = triangle_hash_.CellOf(q.cwiseMax(p));
+      for (int k = lo.z(); k <= hi.z(); ++k) {
+        for (int j = lo.y(); j <= hi.y(); ++j) {
+          for (int i = lo.x(); i <= hi.x(); ++i) {
+            Eigen::Vector3i cell(i, j, k);
+            triangle_hash_.ForEach(cell, [&](int entry) {
+              // test each triangle once: in the first cell the segment's
+              // and the triangle's cell ranges share
+              Eigen::Vector3i first = lo.cwiseMax(triangle_lo_[entry]);
+              if (cell == first && (cell.array() <= triangle_hi_[entry].array()).all()) {
+                test(entry);
+              }
+            });
+          }
+        }
+      }
+      if (best_entry < 0) continue;
+      const int f = triangles_[best_entry][1];
+      crossing.point = q + best_t * (p - q);
+      // smooth normal: barycentric interpolation of the vertex normals
+      Eigen::Vector3d normal =
+          (1.0 - best_u - best_v) * normals_[b].row(surface_b(f, 0)).transpose() +
+          best_u * normals_[b].row(surface_b(f, 1)).transpose() +
+          best_v * normals_[b].row(surface_b(f, 2)).transpose();
+      double length = normal.norm();
+      if (length < 1e-12) {  // opposite vertex normals cancel: use the face normal
+        normal = (x_b.row(surface_b(f, 1)) - x_b.row(surface_b(f, 0)))
+                     .cross(x_b.row(surface_b(f, 2)) - x_b.row(surface_b(f, 0)))
+                     .transpose();
+        length = normal.norm();
+        if (length == 0.0) continue;
+      }
+      crossing.normal = normal / length;
+      crossing.valid = true;
+    }
+  }
+  stats_.intersection_edges = edges;
+  timings_.intersect += SecondsSince(start);
+}
+
+// stage 3: depth and direction of border points from their crossings
+void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> /*objects*/) {
+  Clock::time_point start = Clock::now();
+  const int num_hits = static_cast<int>(hits_.size());
+  depth_.resize(num_hits);
+  direction_.resize(num_hits);
+  source_.resize(num_hits);
+  layer_.assign(num_hits, -1);
+  // a crossing closer than this to p means p is on the surface: depth 0
+  const double on_surface = 1e-9 * hash_.cell_size();
+#pragma omp parallel for num_threads(std::max(1, options_.num_threads)) schedule(static)
+  for (int h = 0; h < num_hits; ++h) {
+    const Eigen::Vector3d p = Position(hits_[h].vertex);
+    double weight_sum = 0.0;
+    double depth_sum = 0.0;
+    Eigen::Vector3d normal_sum = Eigen::Vector3d::Zero();
+    int nearest = -1;
+    double nearest_distance = std::numeric_limits<double>::infinity();
+    for (int s = crossing_offset_[h]; s < crossing_offset_[h + 1]; ++s) {
+      const Crossing& crossing = crossings_[s];
+      if (!crossing.valid) continue;
+      Eigen::Vector3d to_crossing = crossing.point - p;
+      double distance = to_crossing.norm();
+      if (distance < nearest_distance) {
+        nearest_distance = distance;
+        nearest = s;
+      }
+      if (distance < on_surface) continue;
+      // w_i = 1 / |x_i - p|^2 (method.md, stage 3)
+      double w = 1.0 / (distance * distance);
+      weight_sum += w;
+      depth_sum += w * to_crossing.dot(crossing.normal);
+      normal_sum += w * crossing.normal;
+    }
+    if (nearest < 0) continue;  // not a border point (or no crossing found)
+    if (nearest_distance < on_surface || weight_sum == 0.0) {
+      depth_[h] = 0.0;
+      direction_[h] = crossings_[nearest].normal;
+    } else {
+      depth_[h] = std::max(0.0, depth_sum / weight_sum);
+      double length = normal_sum.norm();
+      direction_[h] = length > 1e-12 * weight_sum ? Eigen::Vector3d(normal_sum / length)
+                                                  : crossings_[nearest].normal;
+    }
+    source_[h] = DepthSource::kBorder;
+    layer_[h] = 0;
+  }
+  timings_.border += SecondsSince(start);
+}
+
+// stage 4: propagation to inner points, each layer from earlier layers only
+void PenetrationSolver::Propagate(std::span<const CollisionObject> objects) {
+  Clock::time_point start = Clock::now();
+  const int num_hits = static_cast<int>(hits_.size());
+  constexpr int kInNextLayer = -2;
+  frontier_.clear();
+  for (int h = 0; h < num_hits; ++h) {
+    if (layer_[h] == 0) frontier_.push_back(h);
+  }
+  const double coincident = 1e-9 * hash_.cell_size();
+  int layer = 0;
+  while (!frontier_.empty()) {
+    ++layer;
+    next_frontier_.clear();
+    for (int h : frontier_) {
+      const int g = hits_[h].vertex;
+      const int a = vertex_object_[g];
+      const int v = g - vertex_offset_[a];
+      const TetMesh& mesh = *objects[a].mesh;
+      for (int n = mesh.adjacency_offsets()[v]; n < mesh.adjacency_offsets()[v + 1]; ++n) {
+        int neighbour = FindHit(vertex_offset_[a] + mesh.adjacency()[n], hits_[h].penetrated);
+        if (neighbour >= 0 && layer_[neighbour] == -1) {
+          layer_[neighbour] = kInNextLayer;
+          next_frontier_.push_back(neighbour);
+        }
+      }
+    }
+    std::sort(next_frontier_.begin(), next_frontier_.end());
+#pragma omp parallel for num_threads(std::max(1, options_.num_threads)) schedule(static)
+    for (size_t i = 0; i < next_frontier_.size(); ++i) {
+      const int h = next_frontier_[i];
+      const int g = hits_[h].vertex;
+      const int a = vertex_object_[g];
+      const int v = g - vertex_offset_[a];
+      const TetMesh& mesh = *objects[a].mesh;
+      const Eigen::Vector3d p = Position(g);
+      double weight_sum = 0.0;
+      double depth_sum = 0.0;
+      Eigen::Vector3d direction_sum = Eigen::Vector3d::Zero();
+      int copy_from = -1;
+      for (int n = mesh.adjacency_offsets()[v]; n < mesh.adjacency_offsets()[v + 1]; ++n) {
+        const int j_global = vertex_offset_[a] + mesh.adjacency()[n];
+        const int j = FindHit(j_global, hits_[h].penetrated);
+        if (j < 0 || layer_[j] < 0) continue;  // only points of earlier layers
+        Eigen::Vector3d to_neighbour = Position(j_global) - p;
+        double distance_sq = to_neighbour.squaredNorm();
+        if (distance_sq < coincident * coincident) {
+          if (copy_from < 0) copy_from = j;
+          continue;
+        }
+        // mu_j = 1 / |p_j - p|^2 (method.md, stage 4)
+        double mu = 1.0 / distance_sq;
+        weight_sum += mu;
+        depth_sum += mu * (to_neighbour.dot(direction_[j]) + depth_[j]);
+        direction_sum += mu * direction_[j];
+      }
+      if (copy_from >= 0 || weight_sum == 0.0) {
+        depth_[h] = depth_[copy_from];
+        direction_[h] = direction_[copy_from];
+      } else {
+        depth_[h] = std::max(0.0, depth_sum / weight_sum);
+        double length = direction_sum.norm();
+        if (length > 1e-12 * weight_sum) {
+          direction_[h] = direction_sum / length;
+        } else {  // directions cancel: keep the nearest neighbour's
+          direction_[h] = Eigen::Vector3d::Zero();
+        }
+      }
+      source_[h] = DepthSource::kPropagated;
+    }
+    for (int h : next_frontier_) {
+      layer_[h] = direction_[h].squaredNorm() > 0.0 ? layer : -1;
+    }
+    std::swap(frontier_, next_frontier_);
+    // points whose neighbour directions cancelled stay unresolved; drop
+    // them from the frontier
+    frontier_.erase(
+        std::remove_if(frontier_.begin(), frontier_.end(), [&](int h) { return layer_[h] < 0; }),
+        frontier_.end());
+  }
+  stats_.layers = layer > 0 ? layer - 1 : 0;
+  timings_.propagate += SecondsSince(start);
+}
+
+bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> objects, int b,
+                                            const Eigen::Vector3d& p, int exclude,
+                                            Eigen::Vector3d& closest) const {
+  const Positions& x = *objects[b].positions;
+  const Triangles& surface = objects[b].mesh->surface();
+  double best = std::numeric_limits<double>::infinity();
+  auto test = [&](int entry) {
+    if (triangles_[entry][0] != b) return;
+    const int f = triangles_[entry][1];
+    if (exclude >= 0 &&
+        (surface(f, 0) == exclude || surface(f, 1) == exclude || surface(f, 2) == exclude)) {
+      return;
+    }
+    Eigen::Vector3d c =
+        ClosestPointOnTriangle(p, x.row(surface(f, 0)), x.row(surface(f, 1)), x.row(surface(f, 2)));
+    double d = (c - p).squaredNorm();
+    if (d < best) {
+      best = d;
+      closest = c;
+    }
+  };
+  for (int entry : large_triangles_) test(entry);
+  // search cubes of cells of growing radius k around p's cell: every point
+  // within k cells of p lies in the cube, so the search may stop as soon as
+  // the best distance is at most k cell sizes
+  const double cell_size = triangle_hash_.cell_size();
+  const Eigen::Vector3i center = triangle_hash_.CellOf(p);
+  Eigen::Vector3d lo_b = x.colwise().minCoeff().transpose();  // B's bounding box in cells
+  Eigen::Vector3d hi_b = x.colwise().maxCoeff().transpose();
+  const Eigen::Vector3i box_lo = triangle_hash_.CellOf(lo_b);
+  const Eigen::Vector3i box_hi = triangle_hash_.CellOf(hi_b);
+  for (int k = 0;; ++k) {
+    Eigen::Vector3i lo = (center.array() - k).matrix().cwiseMax(box_lo);
+    Eigen::Vector3i hi = (center.array() + k).matrix().cwiseMin(box_hi);
+    for (int cz = lo.z(); cz <= hi.z(); ++cz) {
+      for (int cy = lo.y(); cy <= hi.y(); ++cy) {
+        for (int cx = lo.x(); cx <= hi.x(); ++cx) {
+          Eigen::Vector3i cell(cx, cy, cz);
+          // only the shell of the cube: the inside was searched before
+          if ((cell - center).cwiseAbs().maxCoeff() != k) continue;
+          triangle_hash_.ForEach(cell, [&](int entry) {
+            if ((cell.array() >= triangle_lo_[entry].array()).all() &&
+                (cell.array() <= triangle_hi_[entry].array()).all()) {
+              test(entry);
+            }
+          });
+        }
+      }
+    }
+    if (best <= (k * cell_size) * (k * cell_size)) break;
+    // the cube covers all of B's cells: nothing left to find
+    if (((center.array() - k) <= box_lo.array()).all() &&
+        ((center.array() + k) >= box_hi.array()).all()) {
+      break;
+    }
+  }
+  return std::isfinite(best);
+}
+
+// closest features: for every point without a value (fallback) or all points
+void PenetrationSolver::ComputeClosest(std::span<const CollisionObject> objects, bool all) {
+  Clock::time_point start = Clock::now();
+  const int num_hits = static_cast<int>(hits_.size());
+  if (all) {
+    depth_.resize(num_hits);
+    direction_.resize(num_hits);
+    source_.resize(num_hits);
+    layer_.assign(num_hits, -1);
+  }
+  const DepthSource source = all ? DepthSource::kClosest : DepthSource::kFallback;
+#pragma omp parallel for num_threads(std::max(1, options_.num_threads)) schedule(dynamic, 64)
+  for (int h = 0; h < num_hits; ++h) {
+    if (layer_[h] >= 0) continue;
+    const int g = hits_[h].vertex;
+    const int a = vertex_object_[g];
+    const int b = hits_[h].penetrated;
+    const Eigen::Vector3d p = Position(g);
+    Eigen::Vector3d closest;
+    int exclude = a == b ? g - vertex_offset_[a] : -1;
+    if (!ClosestSurfacePoint(objects, b, p, exclude, closest)) continue;
+    Eigen::Vector3d to_surface = closest - p;
+    double distance = to_surface.norm();
+    depth_[h] = distance;
+    if (distance > 0.0) {
+      direction_[h] = to_surface / distance;
+    } else {
+      // on the surface: the way out is B's outward normal there; take the
+      // containing tet's centroid as the inside
+      const auto tet = objects[b].mesh->tets().row(hits_[h].tet);
+      Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+      for (int i = 0; i < 4; ++i) centroid += objects[b].positions->row(tet[i]).transpose() / 4.0;
+      Eigen::Vector3d out = p - centroid;
+      direction_[h] =
+          out.norm() > 0.0 ? Eigen::Vector3d(out.normalized()) : Eigen::Vector3d::UnitZ();
+    }
+    source_[h] = source;
+    layer_[h] = std::numeric_limits<int>::max();
+  }
+  timings_.closest += SecondsSince(start);
+}
+
+void PenetrationSolver::CollectResults(std::span<const CollisionObject> /*objects*/) {
+  results_.clear();
+  double depth_sum = 0.0;
+  for (size_t h = 0; h < hits_.size(); ++h) {
+    if (layer_[h] < 0) {
+      ++stats_.unresolved;
+      continue;
+    }
+    const Hit& hit = hits_[h];
+    PenetrationResult result;
+    result.object = vertex_object_[hit.vertex];
+    result.vertex = hit.vertex - vertex_offset_[result.object];
+    result.penetrated = hit.penetrated;
+    result.tet = hit.tet;
+    result.barycentric = hit.barycentric;
+    result.depth = depth_[h];
+    result.direction = direction_[h];
+    result.source = source_[h];
+    results_.push_back(result);
+    depth_sum += result.depth;
+    stats_.max_depth = std::max(stats_.max_depth, result.depth);
+    switch (result.source) {
+      case DepthSource::kBorder:
+        ++stats_.border;
+        break;
+      case DepthSource::kPropagated:
+        ++stats_.propagated;
+        break;
+      case DepthSource::kFallback:
+        ++stats_.fallback;
+        break;
+      case DepthSource::kClosest:
+        ++stats_.closest;
+        break;
+    }
+  }
+  stats_.colliding = static_cast<int>(results_.size());
+  stats_.mean_depth = results_.empty() ? 0.0 : depth_sum / static_cast<double>(results_.size());
+}
+
+}  // namespace tetcosim

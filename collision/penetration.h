@@ -1,0 +1,201 @@
+#pragma once
+
+// Consistent penetration depth (Heidelberger, Teschner, Keiser, Muller,
+// Gross, VMV 2004; see docs/collision.md and ../shared/docs/method.md) and
+// the closest-feature baseline, for N tetrahedral collision objects.
+//
+// For every vertex p of object A that lies inside object B (A != B, or A == B
+// with self-collision on and p not a vertex of B's containing tetrahedron),
+// the solver returns one PenetrationResult: depth d >= 0, unit direction r
+// (the way out of B), B's containing tetrahedron and p's barycentric
+// coordinates in it, and how the value was obtained.
+//
+// Consistent method, per step:
+//   1. colliding points: vertices hashed by cell; every tetrahedron tests the
+//      vertices in the cells its bounding box covers (spatial_hash.h);
+//   2. border points (colliding w.r.t. B with a neighbour that is not) and
+//      their intersection edges: the crossing with B's surface nearest the
+//      outside vertex q, and B's smooth normal there;
+//   3. d(p) = sum_i w_i (x_i - p).n_i / sum_i w_i,
+//      r(p) = normalise(sum_i w_i n_i),  w_i = 1 / |x_i - p|^2;
+//   4. propagation, layer by layer from earlier layers only:
+//      d(p) = sum_j mu_j ((p_j - p).r(p_j) + d(p_j)) / sum_j mu_j,
+//      r(p) = normalise(sum_j mu_j r(p_j)),  mu_j = 1 / |p_j - p|^2.
+//   Beyond the paper: points of a component with no border point get the
+//   closest-feature value, flagged kFallback.
+// Closest-feature method: d = distance to the nearest point of B's surface,
+// r = unit vector from p toward it.
+//
+// Rigid-rigid pairs are skipped (the rigid engine handles them).
+// Deterministic: bit-identical results for the same input whatever the
+// thread count. No heap allocation per step once the buffers have grown to
+// the scene's size.
+
+#include <array>
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "collision/spatial_hash.h"
+#include "mesh/tet_mesh.h"
+
+namespace tetcosim {
+
+enum class DepthMethod { kConsistent, kClosest };
+
+// How a result's depth and direction were obtained.
+enum class DepthSource : std::uint8_t {
+  kBorder,      // stage 3: from the point's own intersection edges
+  kPropagated,  // stage 4: from neighbours, layer by layer
+  kFallback,    // consistent method, no border point reached: closest feature
+  kClosest,     // closest-feature method
+};
+
+const char* DepthMethodName(DepthMethod method);
+const char* DepthSourceName(DepthSource source);
+
+// One object as the solver sees it: shared immutable topology and the current
+// positions (#V x 3, world frame, metres), which must outlive Solve().
+struct CollisionObject {
+  const TetMesh* mesh = nullptr;
+  const Positions* positions = nullptr;
+  bool rigid = false;           // rigid objects never collide with each other
+  bool self_collision = false;  // test the object's vertices against its own tets
+};
+
+struct PenetrationResult {
+  int object = -1;      // A: the object of the colliding vertex
+  int vertex = -1;      // the vertex, index into A's mesh
+  int penetrated = -1;  // B: the object it is inside
+  int tet = -1;         // B's tetrahedron that contains the vertex
+  Eigen::Vector4d barycentric = Eigen::Vector4d::Zero();  // of the vertex in that tet
+  double depth = 0.0;                                     // >= 0, metres
+  Eigen::Vector3d direction = Eigen::Vector3d::Zero();    // unit, out of B
+  DepthSource source = DepthSource::kBorder;
+};
+
+struct PenetrationOptions {
+  DepthMethod method = DepthMethod::kConsistent;
+  // Hash cell size in metres; 0 picks the average edge length over all
+  // objects (Teschner et al. 2003).
+  double cell_size = 0.0;
+  // Threads for the parallel stages (1 = serial). Results do not depend on it.
+  int num_threads = 1;
+  // Give points that no border point reaches the closest-feature value.
+  bool fallback = true;
+};
+
+// Wall-clock seconds spent in each stage of the last Solve().
+struct PenetrationTimings {
+  double hash = 0.0;       // stage 1a: hashing vertices (and surface triangles)
+  double inside = 0.0;     // stage 1b: vertex-in-tetrahedron tests
+  double intersect = 0.0;  // stage 2: intersection edges against surfaces
+  double border = 0.0;     // stage 3: border point depth and direction
+  double propagate = 0.0;  // stage 4: propagation
+  double closest = 0.0;    // closest features (fallback or closest method)
+  double total = 0.0;
+};
+
+struct PenetrationStats {
+  int colliding = 0;   // results
+  int border = 0;      // kBorder results
+  int propagated = 0;  // kPropagated results
+  int fallback = 0;    // kFallback results
+  int closest = 0;     // kClosest results
+  int unresolved = 0;  // colliding points that got no value (fallback off)
+  int intersection_edges = 0;
+  int layers = 0;  // propagation layers
+  double max_depth = 0.0;
+  double mean_depth = 0.0;
+};
+
+class PenetrationSolver {
+ public:
+  explicit PenetrationSolver(PenetrationOptions options = {});
+
+  const PenetrationOptions& options() const { return options_; }
+  void set_options(const PenetrationOptions& options) { options_ = options; }
+
+  // Finds every colliding point and its depth and direction. Results are
+  // ordered by (object, vertex, penetrated). The returned reference stays
+  // valid until the next Solve().
+  const std::vector<PenetrationResult>& Solve(std::span<const CollisionObject> objects);
+
+  const std::vector<PenetrationResult>& results() const { return results_; }
+  const PenetrationTimings& timings() const { return timings_; }
+  const PenetrationStats& stats() const { return stats_; }
+  double cell_size() const { return hash_.cell_size(); }
+
+ private:
+  // a colliding point: global vertex inside object `penetrated`
+  struct Hit {
+    int vertex;      // global vertex index
+    int penetrated;  // object B
+    int tet;         // B's tet (local index)
+    Eigen::Vector4d barycentric;
+    bool operator<(const Hit& o) const {
+      return vertex != o.vertex           ? vertex < o.vertex
+             : penetrated != o.penetrated ? penetrated < o.penetrated
+                                          : tet < o.tet;
+    }
+  };
+  // a crossing of an intersection edge with B's surface
+  struct Crossing {
+    Eigen::Vector3d point;
+    Eigen::Vector3d normal;
+    bool valid;
+  };
+
+  void Prepare(std::span<const CollisionObject> objects);
+  void FindCollidingPoints(std::span<const CollisionObject> objects);
+  void HashSurfaces(std::span<const CollisionObject> objects);
+  void FindCrossings(std::span<const CollisionObject> objects);
+  void ComputeBorderPoints(std::span<const CollisionObject> objects);
+  void Propagate(std::span<const CollisionObject> objects);
+  void ComputeClosest(std::span<const CollisionObject> objects, bool all);
+  void CollectResults(std::span<const CollisionObject> objects);
+
+  int FindHit(int vertex, int penetrated) const;
+  Eigen::Vector3d Position(int global_vertex) const;
+  // nearest point of B's surface to p (excluding triangles at vertex
+  // `exclude` of B, or -1); returns false if B has no usable triangle
+  bool ClosestSurfacePoint(std::span<const CollisionObject> objects, int b,
+                           const Eigen::Vector3d& p, int exclude, Eigen::Vector3d& closest) const;
+
+  PenetrationOptions options_;
+
+  // per object, fixed while the object set does not change
+  std::vector<int> vertex_offset_;  // #objects + 1: global vertex index of each object's first
+  std::vector<int> vertex_object_;  // #global vertices
+  std::vector<const Positions*> positions_;
+  std::vector<Positions> normals_;  // #objects: current vertex normals
+
+  SpatialHash hash_;  // stage 1: vertices
+  std::vector<Eigen::Vector3i> vertex_cell_;
+  std::vector<std::vector<Hit>> thread_hits_;
+  std::vector<Hit> hits_;        // sorted by (vertex, penetrated)
+  std::vector<int> hit_offset_;  // #global vertices + 1
+
+  SpatialHash triangle_hash_;                  // stage 2 and closest features: surface triangles
+  std::vector<std::array<int, 2>> triangles_;  // (object, local triangle) per entry
+  std::vector<Eigen::Vector3i> triangle_lo_, triangle_hi_;  // cell range per triangle entry
+  std::vector<int> large_triangles_;                        // entries too large to hash
+  std::vector<char> object_penetrated_;
+  std::vector<int> triangle_base_;  // #objects: first entry of each object or -1
+
+  std::vector<int> crossing_offset_;  // #hits + 1: slots for the hit's neighbours
+  std::vector<Crossing> crossings_;
+
+  // per hit: value and state
+  std::vector<double> depth_;
+  std::vector<Eigen::Vector3d> direction_;
+  std::vector<DepthSource> source_;
+  std::vector<int> layer_;  // -1: no value yet; 0 border; k propagated in layer k
+  std::vector<int> frontier_, next_frontier_;
+
+  std::vector<PenetrationResult> results_;
+  PenetrationTimings timings_;
+  PenetrationStats stats_;
+};
+
+}  // namespace tetcosim

@@ -1,0 +1,368 @@
+#include "collision/penetration.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstring>
+#include <map>
+#include <numbers>
+#include <random>
+#include <tuple>
+
+#include "collision/geometry.h"
+#include "tests/collision/scene_helpers.h"
+
+namespace tetcosim {
+namespace {
+
+using testing::Pose;
+using testing::TestScene;
+
+// (object, vertex, penetrated) -> containing tet, by testing every vertex
+// against every tetrahedron (the oracle for the spatial hash)
+std::map<std::tuple<int, int, int>, int> BruteForceInside(const TestScene& scene) {
+  std::map<std::tuple<int, int, int>, std::pair<double, int>> best;
+  for (int b = 0; b < static_cast<int>(scene.objects.size()); ++b) {
+    const CollisionObject& ob = scene.objects[b];
+    for (int t = 0; t < ob.mesh->num_tets(); ++t) {
+      auto tet = ob.mesh->tets().row(t);
+      Eigen::Vector3d c[4];
+      for (int i = 0; i < 4; ++i) c[i] = ob.positions->row(tet[i]).transpose();
+      for (int a = 0; a < static_cast<int>(scene.objects.size()); ++a) {
+        const CollisionObject& oa = scene.objects[a];
+        if (a == b && !ob.self_collision) continue;
+        if (a != b && oa.rigid && ob.rigid) continue;
+        for (int v = 0; v < oa.mesh->num_vertices(); ++v) {
+          if (a == b && (tet.array() == v).any()) continue;
+          Eigen::Vector4d l;
+          if (!TetBarycentric(c[0], c[1], c[2], c[3], oa.positions->row(v).transpose(), l))
+            continue;
+          if (l.minCoeff() < 0.0) continue;
+          auto key = std::make_tuple(a, v, b);
+          auto it = best.find(key);
+          if (it == best.end() || l.minCoeff() > it->second.first) best[key] = {l.minCoeff(), t};
+        }
+      }
+    }
+  }
+  std::map<std::tuple<int, int, int>, int> out;
+  for (const auto& [key, value] : best) out[key] = value.second;
+  return out;
+}
+
+void ExpectSameCollidingPoints(const TestScene& scene, PenetrationOptions options) {
+  PenetrationSolver solver(options);
+  const auto& results = solver.Solve(scene.objects);
+  auto expected = BruteForceInside(scene);
+  std::map<std::tuple<int, int, int>, int> found;
+  for (const PenetrationResult& r : results) found[{r.object, r.vertex, r.penetrated}] = r.tet;
+  EXPECT_EQ(solver.stats().unresolved, 0);
+  EXPECT_EQ(found.size(), expected.size());
+  EXPECT_EQ(found, expected);
+}
+
+TEST(CollidingPoints, HashMatchesBruteForceOnRandomScenes) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> offset(-0.06, 0.06);
+  std::uniform_real_distribution<double> angle(0.0, std::numbers::pi);
+  const char* shapes[] = {"box:size=0.05,0.04,0.03:res=4", "sphere:size=0.05:res=1",
+                          "torus:size=0.05,0.02:res=2", "capsule:size=0.02,0.03:res=3"};
+  for (int trial = 0; trial < 8; ++trial) {
+    TestScene scene;
+    for (int k = 0; k < 4; ++k) {
+      Eigen::Vector3d axis(offset(rng), offset(rng), offset(rng) + 0.01);
+      scene.Add(TetMesh::Build(MakeShape(shapes[(trial + k) % 4])),
+                Pose({offset(rng), offset(rng), offset(rng)}, angle(rng), axis),
+                k == 3 && trial % 2);
+    }
+    SCOPED_TRACE(trial);
+    // default cell size, tiny cells (many distinct cells share buckets) and
+    // huge cells (many vertices per cell)
+    for (double cell : {0.0, 0.002, 0.2}) {
+      SCOPED_TRACE(cell);
+      PenetrationOptions options;
+      options.cell_size = cell;
+      ExpectSameCollidingPoints(scene, options);
+    }
+  }
+}
+
+TEST(CollidingPoints, VerticesOnCellBoundaries) {
+  // grid-aligned boxes whose vertices sit exactly on cell boundaries, and
+  // touch exactly along faces
+  TestScene scene;
+  scene.Add("box:size=0.1,0.1,0.1:res=4", {0, 0, 0});
+  scene.Add("box:size=0.05,0.05,0.05:res=2", {0.1, 0.05, 0.0});
+  scene.Add("box:size=0.05,0.05,0.05:res=2", {-0.1, -0.15, 0.05}, /*rigid=*/true);
+  for (double cell : {0.05, 0.025, 0.1}) {
+    PenetrationOptions options;
+    options.cell_size = cell;
+    ExpectSameCollidingPoints(scene, options);
+  }
+}
+
+// A fine slab pushed delta into a large box through its top face: every
+// colliding point of the slab has depth h - z and direction +z exactly.
+TEST(ConsistentDepth, SlabIntoBoxMatchesTheAnalyticDepth) {
+  const double h = 0.1;        // the box's top face is at z = h
+  const double delta = 0.035;  // slab layers at depths 0.035, 0.025, 0.015, 0.005
+  TestScene scene;
+  int box = scene.Add("box:size=0.2,0.2,0.1:res=8,8,4", {0, 0, 0});
+  int slab = scene.Add("box:size=0.05,0.05,0.025:res=10,10,5", {0.01, -0.02, h - delta + 0.025});
+  PenetrationSolver solver;
+  solver.Solve(scene.objects);
+  int checked = 0;
+  int border = 0;
+  int propagated = 0;
+  double max_depth = 0.0;
+  for (const PenetrationResult& r : solver.results()) {
+    if (r.object != slab) continue;
+    EXPECT_EQ(r.penetrated, box);
+    double z = scene.positions[slab]->row(r.vertex).z();
+    EXPECT_NEAR(r.depth, h - z, 1e-12) << DepthSourceName(r.source);
+    EXPECT_NEAR((r.direction - Eigen::Vector3d::UnitZ()).norm(), 0.0, 1e-12);
+    border += r.source == DepthSource::kBorder;
+    propagated += r.source == DepthSource::kPropagated;
+    max_depth = std::max(max_depth, r.depth);
+    ++checked;
+  }
+  EXPECT_EQ(checked, 11 * 11 * 4);
+  EXPECT_GT(border, 0);
+  EXPECT_GT(propagated, 0);
+  EXPECT_NEAR(max_depth, delta, 1e-12);
+  EXPECT_EQ(solver.stats().fallback, 0);
+}
+
+// The paper's Fig. 1: a cube pushed 70% of its width into another.
+TEST(ConsistentDepth, DeepPenetrationPushesBackTheWayItCame) {
+  const double w = 0.1;
+  TestScene scene;
+  int b = scene.Add("box:size=0.05,0.05,0.05:res=10", {0, 0, 0});
+  // A is 80% as wide, entering B's +x face moving in -x
+  int a = scene.Add("box:size=0.04,0.04,0.04:res=8", {0.5 * w - 0.7 * w + 0.04, 0.003, -0.002});
+  int deep_consistent = 0;
+  for (DepthMethod method : {DepthMethod::kConsistent, DepthMethod::kClosest}) {
+    PenetrationOptions options;
+    options.method = method;
+    PenetrationSolver solver(options);
+    solver.Solve(scene.objects);
+    int wrong_way = 0;
+    int count = 0;
+    for (const PenetrationResult& r : solver.results()) {
+      // A's vertices inside B: the way back is +x. (B's vertices inside A
+      // near A's side faces rightly leave A sideways; they are not the claim.)
+      if (r.object != a) continue;
+      double cosine = r.direction.dot(Eigen::Vector3d::UnitX());
+      if (method == DepthMethod::kConsistent) {
+        EXPECT_GT(cosine, 0.9) << "vertex " << r.vertex;
+        if (r.depth > 0.5 * w) ++deep_consistent;
+      }
+      wrong_way += cosine < 0.5;  // pushed to the far side or sideways
+      ++count;
+    }
+    EXPECT_GT(count, 300);
+    if (method == DepthMethod::kClosest) {
+      // the artifact the paper describes
+      EXPECT_GT(wrong_way, count / 4) << "closest-feature directions that do not point back";
+    } else {
+      EXPECT_EQ(wrong_way, 0);
+    }
+  }
+  EXPECT_GT(deep_consistent, 0) << "consistent depths reach beyond half the width";
+  EXPECT_EQ(b, 0);
+}
+
+// The paper's Fig. 2: a vertex moved in small steps under a corner of a
+// coarse mesh; the consistent direction turns smoothly, the closest one jumps.
+TEST(ConsistentDepth, DirectionIsContinuousUnderAnEdge) {
+  const int steps = 100;
+  double max_turn[2] = {0.0, 0.0};
+  Eigen::Vector3d previous[2];
+  for (int s = 0; s <= steps; ++s) {
+    // p slides under the edge x = y = 0.5 of a one-cell box, from nearer
+    // the +x face (0.1 deep) to nearer the +y face (0.1 deep)
+    double f = static_cast<double>(s) / steps;
+    Eigen::Vector3d p(0.4 - 0.15 * f, 0.25 + 0.15 * f, 0.05);
+    // a small tetrahedron with one vertex at p and three outside the corner
+    RawMesh raw;
+    raw.positions.resize(4, 3);
+    raw.positions.row(0) = p.transpose();
+    raw.positions.row(1) = (p + Eigen::Vector3d(0.3, 0.3, 0.0)).transpose();
+    raw.positions.row(2) = (p + Eigen::Vector3d(0.3, 0.3, 0.2)).transpose();
+    raw.positions.row(3) = (p + Eigen::Vector3d(0.35, 0.25, -0.2)).transpose();
+    raw.tets.resize(1, 4);
+    raw.tets << 0, 1, 2, 3;
+    TestScene step_scene;
+    step_scene.Add(TetMesh::Build(MakeShape("box:size=0.5,0.5,0.5:res=1")));
+    int probe = step_scene.Add(TetMesh::Build(raw));
+    for (int m = 0; m < 2; ++m) {
+      PenetrationOptions options;
+      options.method = m == 0 ? DepthMethod::kConsistent : DepthMethod::kClosest;
+      PenetrationSolver solver(options);
+      solver.Solve(step_scene.objects);
+      const PenetrationResult* found = nullptr;
+      for (const auto& r : solver.results()) {
+        if (r.object == probe && r.vertex == 0) found = &r;
+      }
+      ASSERT_NE(found, nullptr) << "step " << s;
+      if (s > 0) {
+        double turn = std::acos(std::clamp(found->direction.dot(previous[m]), -1.0, 1.0));
+        max_turn[m] = std::max(max_turn[m], turn);
+      }
+      previous[m] = found->direction;
+    }
+  }
+  const double degree = std::numbers::pi / 180.0;
+  EXPECT_LT(max_turn[0], 3.0 * degree) << "consistent direction turns smoothly";
+  EXPECT_GT(max_turn[1], 45.0 * degree) << "closest-feature direction jumps";
+}
+
+TEST(ConsistentDepth, EnclosedObjectGetsFlaggedFallbackValues) {
+  TestScene scene;
+  int box = scene.Add("box:size=0.2,0.2,0.2:res=4", {0, 0, 0});
+  int inner = scene.Add("sphere:size=0.03:res=1", {0.05, 0.02, -0.01});
+  PenetrationSolver solver;
+  solver.Solve(scene.objects);
+  int fallback = 0;
+  for (const PenetrationResult& r : solver.results()) {
+    ASSERT_EQ(r.object, inner);
+    EXPECT_EQ(r.penetrated, box);
+    EXPECT_EQ(r.source, DepthSource::kFallback);
+    // the nearest face of the box is +x at 0.2
+    Eigen::Vector3d p = scene.positions[inner]->row(r.vertex);
+    double nearest = (Eigen::Vector3d::Constant(0.2) - p.cwiseAbs()).minCoeff();
+    EXPECT_NEAR(r.depth, nearest, 1e-12);
+    ++fallback;
+  }
+  EXPECT_EQ(fallback, scene.meshes[inner]->num_vertices());
+  EXPECT_EQ(solver.stats().fallback, fallback);
+
+  PenetrationOptions no_fallback;
+  no_fallback.fallback = false;
+  PenetrationSolver strict(no_fallback);
+  EXPECT_TRUE(strict.Solve(scene.objects).empty());
+  EXPECT_EQ(strict.stats().unresolved, fallback);
+}
+
+TEST(ConsistentDepth, SelfCollisionOnAndOff) {
+  // fold a bar: move its last layer of vertices into its middle
+  TetMesh bar = TetMesh::Build(MakeShape("box:size=0.2,0.02,0.02:res=10,1,1"));
+  Positions folded = bar.positions();
+  for (Eigen::Index v = 0; v < folded.rows(); ++v) {
+    if (folded(v, 0) > 0.19) folded(v, 0) = -0.03;  // deep inside the bar's middle
+  }
+  for (bool self : {false, true}) {
+    CollisionObject object{&bar, &folded, false, self};
+    PenetrationSolver solver;
+    const auto& results = solver.Solve(std::span<const CollisionObject>(&object, 1));
+    if (!self) {
+      EXPECT_TRUE(results.empty());
+      continue;
+    }
+    ASSERT_FALSE(results.empty());
+    for (const PenetrationResult& r : results) {
+      EXPECT_EQ(r.penetrated, 0);
+      EXPECT_TRUE(std::isfinite(r.depth));
+      EXPECT_NEAR(r.direction.norm(), 1.0, 1e-9);
+      EXPECT_FALSE((bar.tets().row(r.tet).array() == r.vertex).any());
+    }
+  }
+}
+
+TEST(ConsistentDepth, RigidObjectsPenetrateAndArePenetratedButNotEachOther) {
+  TestScene scene;
+  int soft = scene.Add("sphere:size=0.05:res=2", {0, 0, 0});
+  int rigid = scene.Add("box:size=0.03,0.03,0.03:res=3", {0.06, 0, 0}, /*rigid=*/true);
+  int rigid2 = scene.Add("box:size=0.03,0.03,0.03:res=3", {0.08, 0, 0}, /*rigid=*/true);
+  PenetrationSolver solver;
+  solver.Solve(scene.objects);
+  int soft_in_rigid = 0, rigid_in_soft = 0;
+  for (const PenetrationResult& r : solver.results()) {
+    EXPECT_FALSE(scene.objects[r.object].rigid && scene.objects[r.penetrated].rigid);
+    soft_in_rigid += r.object == soft && (r.penetrated == rigid || r.penetrated == rigid2);
+    rigid_in_soft += (r.object == rigid || r.object == rigid2) && r.penetrated == soft;
+  }
+  EXPECT_GT(soft_in_rigid, 0);
+  EXPECT_GT(rigid_in_soft, 0);
+}
+
+TEST(ConsistentDepth, DegenerateConfigurationsGiveFiniteValues) {
+  // vertices exactly on faces, edges through triangle edges and vertices,
+  // coincident vertices: grid-aligned boxes sharing planes and vertices
+  TestScene scene;
+  scene.Add("box:size=0.1,0.1,0.1:res=2", {0, 0, 0});
+  scene.Add("box:size=0.05,0.05,0.05:res=1", {0.1, 0.1, 0.1});    // corner on corner
+  scene.Add("box:size=0.05,0.05,0.05:res=2", {0.0, 0.0, 0.125});  // face planes shared
+  scene.Add("sphere:size=0.05:res=0", {-0.1, 0.0, 0.0});          // centre on a face
+  for (DepthMethod method : {DepthMethod::kConsistent, DepthMethod::kClosest}) {
+    PenetrationOptions options;
+    options.method = method;
+    PenetrationSolver solver(options);
+    solver.Solve(scene.objects);
+    EXPECT_FALSE(solver.results().empty());
+    for (const PenetrationResult& r : solver.results()) {
+      EXPECT_TRUE(std::isfinite(r.depth) && r.depth >= 0.0);
+      EXPECT_NEAR(r.direction.norm(), 1.0, 1e-9);
+      EXPECT_TRUE(r.barycentric.allFinite());
+    }
+  }
+}
+
+TEST(ClosestFeature, AcceleratedSearchMatchesBruteForce) {
+  TestScene scene;
+  int torus = scene.Add("torus:size=0.06,0.025:res=3", {0, 0, 0});
+  scene.Add("sphere:size=0.04:res=2", {0.05, 0.01, 0.0});
+  PenetrationOptions options;
+  options.method = DepthMethod::kClosest;
+  PenetrationSolver solver(options);
+  solver.Solve(scene.objects);
+  ASSERT_FALSE(solver.results().empty());
+  for (const PenetrationResult& r : solver.results()) {
+    const CollisionObject& b = scene.objects[r.penetrated];
+    Eigen::Vector3d p = scene.objects[r.object].positions->row(r.vertex);
+    double best = 1e300;
+    for (Eigen::Index f = 0; f < b.mesh->surface().rows(); ++f) {
+      Eigen::Vector3d c = ClosestPointOnTriangle(p, b.positions->row(b.mesh->surface()(f, 0)),
+                                                 b.positions->row(b.mesh->surface()(f, 1)),
+                                                 b.positions->row(b.mesh->surface()(f, 2)));
+      best = std::min(best, (c - p).norm());
+    }
+    EXPECT_NEAR(r.depth, best, 1e-15);
+    EXPECT_EQ(r.source, DepthSource::kClosest);
+  }
+  (void)torus;
+}
+
+TEST(Determinism, SameResultsWithOneAndTwoThreads) {
+  TestScene scene;
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> offset(-0.05, 0.05);
+  for (int k = 0; k < 12; ++k) {
+    scene.Add(TetMesh::Build(MakeShape("sphere:size=0.04:res=1")),
+              Pose({offset(rng), offset(rng), offset(rng)}, offset(rng) * 30, {1, 2, 3}));
+  }
+  for (DepthMethod method : {DepthMethod::kConsistent, DepthMethod::kClosest}) {
+    std::vector<PenetrationResult> runs[2];
+    for (int threads : {1, 2}) {
+      PenetrationOptions options;
+      options.method = method;
+      options.num_threads = threads;
+      PenetrationSolver solver(options);
+      runs[threads - 1] = solver.Solve(scene.objects);
+    }
+    ASSERT_EQ(runs[0].size(), runs[1].size());
+    ASSERT_GT(runs[0].size(), 100u);
+    for (size_t i = 0; i < runs[0].size(); ++i) {
+      const auto& x = runs[0][i];
+      const auto& y = runs[1][i];
+      EXPECT_EQ(std::tie(x.object, x.vertex, x.penetrated, x.tet),
+                std::tie(y.object, y.vertex, y.penetrated, y.tet));
+      EXPECT_EQ(std::memcmp(&x.depth, &y.depth, sizeof(double)), 0);
+      EXPECT_EQ(std::memcmp(x.direction.data(), y.direction.data(), 3 * sizeof(double)), 0);
+      EXPECT_EQ(x.source, y.source);
+    }
+  }
+}
+
+}  // namespace
+}  // namespace tetcosim
