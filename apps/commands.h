@@ -9,5 +9,6 @@
 namespace tetcosim::app {
 
 void AddInfoCommand(CLI::App& app);
+void AddDepthCommand(CLI::App& app);
 
 }  // namespace tetcosim::app

@@ -73,7 +73,7 @@ const std::vector<PenetrationResult>& PenetrationSolver::Solve(
   stats_ = {};
   Prepare(objects);
   FindCollidingPoints(objects);
-  HashSurfaces(objects);
+  HashSurfaces(objects, /*full=*/options_.method == DepthMethod::kClosest);
   if (options_.method == DepthMethod::kConsistent) {
     FindCrossings(objects);
     ComputeBorderPoints(objects);
@@ -112,10 +112,42 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
     std::fill(vertex_object_.begin() + vertex_offset_[o],
               vertex_object_.begin() + vertex_offset_[o + 1], o);
   }
-  double cell = options_.cell_size > 0.0 ? options_.cell_size
-                : edge_count > 0         ? edge_sum / static_cast<double>(edge_count)
-                                         : 1.0;
-  hash_.Reset(cell, num_vertices);
+  cell_size_ = options_.cell_size > 0.0 ? options_.cell_size
+               : edge_count > 0         ? edge_sum / static_cast<double>(edge_count)
+                                        : 1.0;
+  // broad phase: bounding boxes, and the pairs of objects whose boxes overlap
+  object_lo_.resize(num_objects);
+  object_hi_.resize(num_objects);
+  for (int o = 0; o < num_objects; ++o) {
+    object_lo_[o] = objects[o].positions->colwise().minCoeff().transpose();
+    object_hi_[o] = objects[o].positions->colwise().maxCoeff().transpose();
+  }
+  partner_offset_.resize(num_objects + 1);
+  partner_offset_[0] = 0;
+  partners_.clear();
+  for (int b = 0; b < num_objects; ++b) {
+    for (int a = 0; a < num_objects; ++a) {
+      bool may_collide =
+          a == b ? objects[b].self_collision : !(objects[a].rigid && objects[b].rigid);
+      if (may_collide && (object_lo_[a].array() <= object_hi_[b].array()).all() &&
+          (object_lo_[b].array() <= object_hi_[a].array()).all()) {
+        partners_.push_back(a);
+      }
+    }
+    partner_offset_[b + 1] = static_cast<int>(partners_.size());
+  }
+}
+
+bool PenetrationSolver::OverlapsPartner(int b, const Eigen::Vector3d& lo,
+                                        const Eigen::Vector3d& hi) const {
+  for (int i = partner_offset_[b]; i < partner_offset_[b + 1]; ++i) {
+    int a = partners_[i];
+    if ((lo.array() <= object_hi_[a].array()).all() &&
+        (object_lo_[a].array() <= hi.array()).all()) {
+      return true;
+    }
+  }
+  return false;
 }
 
 // stage 1: every vertex inside a tetrahedron of another object
@@ -124,10 +156,22 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
   const int num_objects = static_cast<int>(objects.size());
   const int num_vertices = vertex_offset_[num_objects];
   const int num_threads = std::max(1, options_.num_threads);
+  // hash only vertices that lie in the box of an object they may be inside
   vertex_cell_.resize(num_vertices);
+  vertex_hashed_.resize(num_vertices);
+  hash_.Reset(cell_size_, 0);  // sets the cell size for CellOf; sized below
 #pragma omp parallel for num_threads(num_threads) schedule(static)
-  for (int g = 0; g < num_vertices; ++g) vertex_cell_[g] = hash_.CellOf(Position(g));
-  for (int g = 0; g < num_vertices; ++g) hash_.Insert(vertex_cell_[g], g);
+  for (int g = 0; g < num_vertices; ++g) {
+    Eigen::Vector3d p = Position(g);
+    vertex_hashed_[g] = OverlapsPartner(vertex_object_[g], p, p);
+    if (vertex_hashed_[g]) vertex_cell_[g] = hash_.CellOf(p);
+  }
+  int num_hashed = 0;
+  for (int g = 0; g < num_vertices; ++g) num_hashed += vertex_hashed_[g];
+  hash_.Reset(cell_size_, num_hashed);
+  for (int g = 0; g < num_vertices; ++g) {
+    if (vertex_hashed_[g]) hash_.Insert(vertex_cell_[g], g);
+  }
   timings_.hash += SecondsSince(start);
 
   start = Clock::now();
@@ -160,6 +204,7 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
       for (int i = 0; i < 4; ++i) corner[i] = x.row(tet[i]).transpose();
       Eigen::Vector3d lo = corner[0].cwiseMin(corner[1]).cwiseMin(corner[2].cwiseMin(corner[3]));
       Eigen::Vector3d hi = corner[0].cwiseMax(corner[1]).cwiseMax(corner[2].cwiseMax(corner[3]));
+      if (!OverlapsPartner(b, lo, hi)) continue;  // broad phase: nothing can be inside
       auto test = [&](int g) {
         int a = vertex_object_[g];
         if (a == b) {
@@ -178,7 +223,9 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
       Eigen::Vector3i cell_lo = hash_.CellOf(lo);
       Eigen::Vector3i cell_hi = hash_.CellOf(hi);
       if (CellCount(cell_lo, cell_hi) > kMaxTetCells) {
-        for (int g = 0; g < num_vertices; ++g) test(g);
+        for (int g = 0; g < num_vertices; ++g) {
+          if (vertex_hashed_[g]) test(g);
+        }
         continue;
       }
       for (int k = cell_lo.z(); k <= cell_hi.z(); ++k) {
@@ -222,47 +269,81 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
   timings_.inside += SecondsSince(start);
 }
 
-// surface triangles of every penetrated object into the triangle hash, and
-// current vertex normals of those objects
-void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects) {
+// surface triangles of every penetrated object into the triangle hash (with
+// full = false only those in the box of an object that may penetrate it: an
+// intersection edge lies in the box of its own object), and current vertex
+// normals of those objects
+void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, bool full) {
   Clock::time_point start = Clock::now();
   const int num_objects = static_cast<int>(objects.size());
   object_penetrated_.assign(num_objects, 0);
+  object_fully_hashed_.assign(num_objects, 0);
   for (const Hit& hit : hits_) object_penetrated_[hit.penetrated] = 1;
   int num_triangles = 0;
   for (int o = 0; o < num_objects; ++o) {
     if (object_penetrated_[o]) num_triangles += static_cast<int>(objects[o].mesh->surface().rows());
   }
-  triangle_hash_.Reset(hash_.cell_size(), num_triangles);
+  triangle_hash_.Reset(cell_size_, num_triangles);
   triangles_.clear();
   triangle_lo_.clear();
   triangle_hi_.clear();
+  triangle_box_lo_.clear();
+  triangle_box_hi_.clear();
   large_triangles_.clear();
+  object_cell_lo_.resize(num_objects);
+  object_cell_hi_.resize(num_objects);
   for (int o = 0; o < num_objects; ++o) {
     if (!object_penetrated_[o]) continue;
     const Positions& x = *objects[o].positions;
     const Triangles& surface = objects[o].mesh->surface();
     ComputeVertexNormals(x, surface, normals_[o]);
+    object_cell_lo_[o] = triangle_hash_.CellOf(object_lo_[o]);
+    object_cell_hi_[o] = triangle_hash_.CellOf(object_hi_[o]);
+    object_fully_hashed_[o] = full;
     for (int f = 0; f < surface.rows(); ++f) {
       Eigen::Vector3d a = x.row(surface(f, 0)), b = x.row(surface(f, 1)), c = x.row(surface(f, 2));
-      Eigen::Vector3i lo = triangle_hash_.CellOf(a.cwiseMin(b).cwiseMin(c));
-      Eigen::Vector3i hi = triangle_hash_.CellOf(a.cwiseMax(b).cwiseMax(c));
-      int entry = static_cast<int>(triangles_.size());
-      triangles_.push_back({o, f});
-      triangle_lo_.push_back(lo);
-      triangle_hi_.push_back(hi);
-      if (CellCount(lo, hi) > kMaxTriangleCells) {
-        large_triangles_.push_back(entry);
-        continue;
-      }
-      for (int k = lo.z(); k <= hi.z(); ++k) {
-        for (int j = lo.y(); j <= hi.y(); ++j) {
-          for (int i = lo.x(); i <= hi.x(); ++i) triangle_hash_.Insert({i, j, k}, entry);
-        }
-      }
+      Eigen::Vector3d lo = a.cwiseMin(b).cwiseMin(c);
+      Eigen::Vector3d hi = a.cwiseMax(b).cwiseMax(c);
+      if (full || OverlapsPartner(o, lo, hi)) InsertTriangle(o, f, lo, hi);
     }
   }
   timings_.hash += SecondsSince(start);
+}
+
+void PenetrationSolver::HashRemainingTriangles(std::span<const CollisionObject> objects, int b) {
+  if (object_fully_hashed_[b]) return;
+  object_fully_hashed_[b] = 1;
+  const Positions& x = *objects[b].positions;
+  const Triangles& surface = objects[b].mesh->surface();
+  for (int f = 0; f < surface.rows(); ++f) {
+    Eigen::Vector3d a = x.row(surface(f, 0)), c1 = x.row(surface(f, 1)), c2 = x.row(surface(f, 2));
+    Eigen::Vector3d lo = a.cwiseMin(c1).cwiseMin(c2);
+    Eigen::Vector3d hi = a.cwiseMax(c1).cwiseMax(c2);
+    if (!OverlapsPartner(b, lo, hi)) InsertTriangle(b, f, lo, hi);
+  }
+}
+
+void PenetrationSolver::InsertTriangle(int object, int f, const Eigen::Vector3d& lo,
+                                       const Eigen::Vector3d& hi) {
+  Eigen::Vector3i cell_lo = triangle_hash_.CellOf(lo);
+  Eigen::Vector3i cell_hi = triangle_hash_.CellOf(hi);
+  int entry = static_cast<int>(triangles_.size());
+  triangles_.push_back({object, f});
+  triangle_lo_.push_back(cell_lo);
+  triangle_hi_.push_back(cell_hi);
+  triangle_box_lo_.push_back(lo);
+  triangle_box_hi_.push_back(hi);
+  if (CellCount(cell_lo, cell_hi) > kMaxTriangleCells) {
+    large_triangles_.push_back(entry);
+    return;
+  }
+  for (int k = cell_lo.z(); k <= cell_hi.z(); ++k) {
+    for (int j = cell_lo.y(); j <= cell_hi.y(); ++j) {
+      for (int i = cell_lo.x(); i <= cell_hi.x(); ++i) {
+        triangle_hash_.Insert({i, j, k}, entry, object + 1);
+      }
+    }
+  }
 }
 
 // stage 2: for every colliding point p and neighbour q outside B, the
@@ -305,8 +386,14 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
       double best_t = std::numeric_limits<double>::infinity();
       int best_entry = -1;
       double best_u = 0.0, best_v = 0.0;
+      const Eigen::Vector3d segment_lo = q.cwiseMin(p);
+      const Eigen::Vector3d segment_hi = q.cwiseMax(p);
       auto test = [&](int entry) {
         if (triangles_[entry][0] != b) return;
+        if ((triangle_box_lo_[entry].array() > segment_hi.array()).any() ||
+            (segment_lo.array() > triangle_box_hi_[entry].array()).any()) {
+          return;
+        }
         const int f = triangles_[entry][1];
         if (a == b) {  // self-collision: the edge's own triangles do not count
           for (int k = 0; k < 3; ++k) {
@@ -327,20 +414,23 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
         }
       };
       for (int entry : large_triangles_) test(entry);
-      Eigen::Vector3i lo = triangle_hash_.CellOf(q.cwiseMin(p));
-      Eigen::Vector3i hi = triangle_hash_.CellOf(q.cwiseMax(p));
+      Eigen::Vector3i lo = triangle_hash_.CellOf(segment_lo);
+      Eigen::Vector3i hi = triangle_hash_.CellOf(segment_hi);
       for (int k = lo.z(); k <= hi.z(); ++k) {
         for (int j = lo.y(); j <= hi.y(); ++j) {
           for (int i = lo.x(); i <= hi.x(); ++i) {
             Eigen::Vector3i cell(i, j, k);
-            triangle_hash_.ForEach(cell, [&](int entry) {
-              // test each triangle once: in the first cell the segment's
-              // and the triangle's cell ranges share
-              Eigen::Vector3i first = lo.cwiseMax(triangle_lo_[entry]);
-              if (cell == first && (cell.array() <= triangle_hi_[entry].array()).all()) {
-                test(entry);
-              }
-            });
+            triangle_hash_.ForEach(
+                cell,
+                [&](int entry) {
+                  // test each triangle once: in the first cell the
+                  // segment's and the triangle's cell ranges share
+                  Eigen::Vector3i first = lo.cwiseMax(triangle_lo_[entry]);
+                  if (cell == first && (cell.array() <= triangle_hi_[entry].array()).all()) {
+                    test(entry);
+                  }
+                },
+                b + 1);
           }
         }
       }
@@ -377,7 +467,7 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> /*o
   source_.resize(num_hits);
   layer_.assign(num_hits, -1);
   // a crossing closer than this to p means p is on the surface: depth 0
-  const double on_surface = 1e-9 * hash_.cell_size();
+  const double on_surface = 1e-9 * cell_size_;
 #pragma omp parallel for num_threads(std::max(1, options_.num_threads)) schedule(static)
   for (int h = 0; h < num_hits; ++h) {
     const Eigen::Vector3d p = Position(hits_[h].vertex);
@@ -427,7 +517,7 @@ void PenetrationSolver::Propagate(std::span<const CollisionObject> objects) {
   for (int h = 0; h < num_hits; ++h) {
     if (layer_[h] == 0) frontier_.push_back(h);
   }
-  const double coincident = 1e-9 * hash_.cell_size();
+  const double coincident = 1e-9 * cell_size_;
   int layer = 0;
   while (!frontier_.empty()) {
     ++layer;
@@ -527,12 +617,10 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
   // search cubes of cells of growing radius k around p's cell: every point
   // within k cells of p lies in the cube, so the search may stop as soon as
   // the best distance is at most k cell sizes
-  const double cell_size = triangle_hash_.cell_size();
+  const double cell_size = cell_size_;
   const Eigen::Vector3i center = triangle_hash_.CellOf(p);
-  Eigen::Vector3d lo_b = x.colwise().minCoeff().transpose();  // B's bounding box in cells
-  Eigen::Vector3d hi_b = x.colwise().maxCoeff().transpose();
-  const Eigen::Vector3i box_lo = triangle_hash_.CellOf(lo_b);
-  const Eigen::Vector3i box_hi = triangle_hash_.CellOf(hi_b);
+  const Eigen::Vector3i& box_lo = object_cell_lo_[b];  // B's bounding box in cells
+  const Eigen::Vector3i& box_hi = object_cell_hi_[b];
   for (int k = 0;; ++k) {
     Eigen::Vector3i lo = (center.array() - k).matrix().cwiseMax(box_lo);
     Eigen::Vector3i hi = (center.array() + k).matrix().cwiseMin(box_hi);
@@ -542,12 +630,21 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
           Eigen::Vector3i cell(cx, cy, cz);
           // only the shell of the cube: the inside was searched before
           if ((cell - center).cwiseAbs().maxCoeff() != k) continue;
-          triangle_hash_.ForEach(cell, [&](int entry) {
-            if ((cell.array() >= triangle_lo_[entry].array()).all() &&
-                (cell.array() <= triangle_hi_[entry].array()).all()) {
-              test(entry);
-            }
-          });
+          // skip cells farther from p than the best so far
+          Eigen::Vector3d cell_lo = cell.cast<double>() * cell_size_;
+          Eigen::Vector3d gap = (cell_lo - p)
+                                    .cwiseMax(p - cell_lo - Eigen::Vector3d::Constant(cell_size_))
+                                    .cwiseMax(0.0);
+          if (gap.squaredNorm() > best) continue;
+          triangle_hash_.ForEach(
+              cell,
+              [&](int entry) {
+                if ((cell.array() >= triangle_lo_[entry].array()).all() &&
+                    (cell.array() <= triangle_hi_[entry].array()).all()) {
+                  test(entry);
+                }
+              },
+              b + 1);
         }
       }
     }
@@ -572,6 +669,9 @@ void PenetrationSolver::ComputeClosest(std::span<const CollisionObject> objects,
     layer_.assign(num_hits, -1);
   }
   const DepthSource source = all ? DepthSource::kClosest : DepthSource::kFallback;
+  for (int h = 0; h < num_hits; ++h) {
+    if (layer_[h] < 0) HashRemainingTriangles(objects, hits_[h].penetrated);
+  }
 #pragma omp parallel for num_threads(std::max(1, options_.num_threads)) schedule(dynamic, 64)
   for (int h = 0; h < num_hits; ++h) {
     if (layer_[h] >= 0) continue;

@@ -124,7 +124,7 @@ class PenetrationSolver {
   const std::vector<PenetrationResult>& results() const { return results_; }
   const PenetrationTimings& timings() const { return timings_; }
   const PenetrationStats& stats() const { return stats_; }
-  double cell_size() const { return hash_.cell_size(); }
+  double cell_size() const { return cell_size_; }
 
  private:
   // a colliding point: global vertex inside object `penetrated`
@@ -148,7 +148,14 @@ class PenetrationSolver {
 
   void Prepare(std::span<const CollisionObject> objects);
   void FindCollidingPoints(std::span<const CollisionObject> objects);
-  void HashSurfaces(std::span<const CollisionObject> objects);
+  void HashSurfaces(std::span<const CollisionObject> objects, bool full);
+  // adds the triangles of object b that HashSurfaces left out (for closest
+  // features, which may lie outside the region where objects overlap)
+  void HashRemainingTriangles(std::span<const CollisionObject> objects, int b);
+  void InsertTriangle(int object, int f, const Eigen::Vector3d& lo, const Eigen::Vector3d& hi);
+  // true if the box [lo, hi] overlaps the bounding box of an object that
+  // can collide with object b
+  bool OverlapsPartner(int b, const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) const;
   void FindCrossings(std::span<const CollisionObject> objects);
   void ComputeBorderPoints(std::span<const CollisionObject> objects);
   void Propagate(std::span<const CollisionObject> objects);
@@ -163,25 +170,34 @@ class PenetrationSolver {
                            const Eigen::Vector3d& p, int exclude, Eigen::Vector3d& closest) const;
 
   PenetrationOptions options_;
+  double cell_size_ = 1.0;  // of both hashes, metres
 
   // per object, fixed while the object set does not change
   std::vector<int> vertex_offset_;  // #objects + 1: global vertex index of each object's first
   std::vector<int> vertex_object_;  // #global vertices
   std::vector<const Positions*> positions_;
   std::vector<Positions> normals_;  // #objects: current vertex normals
+  // broad phase: current bounding boxes, and per object the objects whose
+  // boxes overlap it and that it may collide with (itself with self-collision)
+  std::vector<Eigen::Vector3d> object_lo_, object_hi_;  // #objects
+  std::vector<int> partner_offset_;                     // #objects + 1
+  std::vector<int> partners_;
 
   SpatialHash hash_;  // stage 1: vertices
   std::vector<Eigen::Vector3i> vertex_cell_;
+  std::vector<char> vertex_hashed_;  // #global vertices: inside a partner's box
   std::vector<std::vector<Hit>> thread_hits_;
   std::vector<Hit> hits_;        // sorted by (vertex, penetrated)
   std::vector<int> hit_offset_;  // #global vertices + 1
 
   SpatialHash triangle_hash_;                  // stage 2 and closest features: surface triangles
   std::vector<std::array<int, 2>> triangles_;  // (object, local triangle) per entry
-  std::vector<Eigen::Vector3i> triangle_lo_, triangle_hi_;  // cell range per triangle entry
-  std::vector<int> large_triangles_;                        // entries too large to hash
+  std::vector<Eigen::Vector3i> triangle_lo_, triangle_hi_;          // cell range per triangle entry
+  std::vector<Eigen::Vector3d> triangle_box_lo_, triangle_box_hi_;  // bounding box per entry
+  std::vector<int> large_triangles_;                                // entries too large to hash
   std::vector<char> object_penetrated_;
-  std::vector<int> triangle_base_;  // #objects: first entry of each object or -1
+  std::vector<char> object_fully_hashed_;
+  std::vector<Eigen::Vector3i> object_cell_lo_, object_cell_hi_;  // #objects: bounding box in cells
 
   std::vector<int> crossing_offset_;  // #hits + 1: slots for the hit's neighbours
   std::vector<Crossing> crossings_;

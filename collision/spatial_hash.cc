@@ -23,34 +23,34 @@ void SpatialHash::Reset(double cell_size, int num_items) {
   cell_size_ = cell_size;
   inverse_cell_size_ = 1.0 / cell_size;
   int wanted = 2 * std::max(num_items, 16) + 1;
-  if (static_cast<int>(head_.size()) < wanted) {
-    int n = NextPrime(wanted);
-    head_.assign(n, -1);
-    stamp_.assign(n, 0);
+  if (static_cast<int>(table_size_) < wanted) {
+    table_size_ = static_cast<std::uint64_t>(NextPrime(wanted));
+    modulo_magic_ = UINT64_MAX / table_size_ + 1;
+    slots_.assign(table_size_, Slot{0, -1});
     round_ = 0;
   }
   ++round_;
   if (round_ == 0) {  // wrapped after 2^32 rounds: stamps would be ambiguous
-    std::fill(stamp_.begin(), stamp_.end(), 0u);
+    for (Slot& slot : slots_) slot.stamp = 0;
     round_ = 1;
   }
   num_entries_ = 0;
 }
 
-void SpatialHash::Insert(const Eigen::Vector3i& cell, int item) {
-  int bucket = Bucket(cell);
-  if (stamp_[bucket] != round_) {
-    stamp_[bucket] = round_;
-    head_[bucket] = -1;
+void SpatialHash::Insert(const Eigen::Vector3i& cell, int item, int key) {
+  Slot& slot = slots_[Bucket(cell, key)];
+  if (slot.stamp != round_) {
+    slot.stamp = round_;
+    slot.head = -1;
   }
   if (num_entries_ == static_cast<int>(item_.size())) {
     item_.push_back(item);
-    next_.push_back(head_[bucket]);
+    next_.push_back(slot.head);
   } else {
     item_[num_entries_] = item;
-    next_[num_entries_] = head_[bucket];
+    next_[num_entries_] = slot.head;
   }
-  head_[bucket] = num_entries_++;
+  slot.head = num_entries_++;
 }
 
 }  // namespace tetcosim

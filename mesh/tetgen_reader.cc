@@ -23,11 +23,11 @@ RawMesh ReadTetGen(const std::string& node_path, std::string_view node_content,
   long dim = nodes.Int("the dimension");
   long num_attributes = nodes.Int("the number of point attributes");
   long num_markers = nodes.Int("the number of boundary markers");
-  nodes.CheckCount(num_points, 8, "points");
   if (dim != 3) nodes.Fail("dimension " + std::to_string(dim) + " is not 3");
   if (num_attributes < 0 || num_markers < 0 || num_markers > 1) {
     nodes.Fail("bad attribute or boundary-marker count in the header");
   }
+  nodes.CheckCount(num_points, 8, "points");
   raw.positions.resize(num_points, 3);
   raw.node_ids.resize(static_cast<size_t>(num_points));
   raw.node_lines.resize(static_cast<size_t>(num_points));

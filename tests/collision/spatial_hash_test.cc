@@ -47,3 +47,23 @@ TEST(SpatialHash, CellOfFloorsNegativeCoordinates) {
 
 }  // namespace
 }  // namespace tetcosim
+
+namespace tetcosim {
+namespace {
+
+TEST(SpatialHash, BucketIsTheHashModuloThePrimeTableSize) {
+  SpatialHash hash;
+  hash.Reset(1.0, 12345);
+  std::mt19937 rng(5);
+  std::uniform_int_distribution<int> coordinate(-100000, 100000);
+  for (int i = 0; i < 10000; ++i) {
+    Eigen::Vector3i c(coordinate(rng), coordinate(rng), coordinate(rng));
+    std::uint32_t h = (static_cast<std::uint32_t>(c.x()) * 73856093u) ^
+                      (static_cast<std::uint32_t>(c.y()) * 19349663u) ^
+                      (static_cast<std::uint32_t>(c.z()) * 83492791u);
+    ASSERT_EQ(hash.Bucket(c), static_cast<int>(h % static_cast<std::uint32_t>(hash.table_size())));
+  }
+}
+
+}  // namespace
+}  // namespace tetcosim
