@@ -1,0 +1,106 @@
+#include "deformable/contact.h"
+
+#include <cmath>
+
+namespace tetcosim {
+
+double DefaultContactPressureStiffness(const FemModel& model) {
+  return 10.0 * model.material().young / model.characteristic_length();
+}
+
+ContactLinearization LinearizeContact(std::span<DeformableBody* const> bodies,
+                                      const ContactPoint& contact,
+                                      const ContactSettings& settings) {
+  const Eigen::Vector3d& r = contact.direction;
+  // velocities and masses of both sides at the point
+  ContactLinearization out;
+  out.rigid_velocity.setZero();
+  Eigen::Vector3d v_a = contact.velocity_a;
+  double m_a = contact.mass_a;
+  if (contact.body_a >= 0) {
+    const DeformableBody& a = *bodies[contact.body_a];
+    v_a = a.velocities().row(contact.vertex_a).transpose();
+    m_a = a.model().masses()[contact.vertex_a];
+  } else {
+    out.rigid_velocity += contact.velocity_a;
+  }
+  Eigen::Vector3d v_b = contact.velocity_b;
+  double m_b = contact.mass_b;
+  if (contact.body_b >= 0) {
+    const DeformableBody& b = *bodies[contact.body_b];
+    v_b.setZero();
+    m_b = 0.0;
+    for (int i = 0; i < 4; ++i) {
+      int vertex = b.mesh().tets()(contact.tet_b, i);
+      v_b += contact.barycentric_b[i] * b.velocities().row(vertex).transpose();
+      m_b += contact.barycentric_b[i] * b.model().masses()[vertex];
+    }
+  } else {
+    out.rigid_velocity -= contact.velocity_b;
+  }
+  // reduced mass (a side without mass is infinitely heavy)
+  const double mass = m_a > 0.0 && m_b > 0.0 ? m_a * m_b / (m_a + m_b) : std::max(m_a, m_b);
+  const double k = contact.stiffness;
+  const double c = 2.0 * settings.damping_ratio * std::sqrt(k * std::max(mass, 0.0));
+  out.relative_velocity = v_a - v_b;
+  const double v_n = out.relative_velocity.dot(r);
+  const bool approaching = v_n < 0.0;
+  const double f_n = std::max(0.0, k * contact.depth - (approaching ? c * v_n : 0.0));
+  const Eigen::Vector3d v_t = out.relative_velocity - v_n * r;
+  const double slip =
+      std::sqrt(v_t.squaredNorm() + settings.slip_velocity * settings.slip_velocity);
+  const double friction_gain = contact.friction * f_n / slip;
+  out.force = f_n * r - friction_gain * v_t;
+  const Eigen::Matrix3d rr = r * r.transpose();
+  out.stiffness = k * rr;
+  out.damping = (approaching ? c : 0.0) * rr + friction_gain * (Eigen::Matrix3d::Identity() - rr);
+  return out;
+}
+
+void ApplyContacts(std::span<DeformableBody* const> bodies, std::span<ContactPoint> contacts,
+                   const ContactSettings& settings) {
+  for (ContactPoint& contact : contacts) {
+    const ContactLinearization l = LinearizeContact(bodies, contact, settings);
+    contact.force = l.force;
+    // linearised about the other side's motion: A's depth stays constant if
+    // A moves with B's point (u = v_B); B's vertex i (weight w) holds its
+    // share if it keeps its velocity and A keeps A's
+    if (contact.body_a >= 0) {
+      const Eigen::Vector3d v_a =
+          bodies[contact.body_a]->velocities().row(contact.vertex_a).transpose();
+      bodies[contact.body_a]->AddContactLoad(contact.vertex_a, l.force, l.stiffness, l.damping,
+                                             l.stiffness * (v_a - l.relative_velocity));
+    }
+    if (contact.body_b >= 0) {
+      DeformableBody& b = *bodies[contact.body_b];
+      for (int i = 0; i < 4; ++i) {
+        const double w = contact.barycentric_b[i];
+        if (w == 0.0) continue;
+        const int vertex = b.mesh().tets()(contact.tet_b, i);
+        const Eigen::Vector3d ku = w * w * (l.stiffness * b.velocities().row(vertex).transpose()) +
+                                   w * (l.stiffness * l.relative_velocity);
+        b.AddContactLoad(vertex, -w * l.force, w * w * l.stiffness, w * w * l.damping, ku);
+      }
+    }
+  }
+}
+
+void AddHalfSpaceContacts(int index, const DeformableBody& body, const Eigen::Vector3d& normal,
+                          double offset, double kappa, double friction,
+                          std::vector<ContactPoint>& contacts) {
+  const Eigen::VectorXd& areas = body.model().contact_areas();
+  for (int v = 0; v < body.num_vertices(); ++v) {
+    double depth = offset - normal.dot(body.positions().row(v).transpose());
+    if (depth <= 0.0) continue;
+    ContactPoint contact;
+    contact.body_a = index;
+    contact.vertex_a = v;
+    contact.depth = depth;
+    contact.direction = normal;
+    contact.stiffness = kappa * areas[v];
+    contact.friction = friction;
+    contacts.push_back(contact);
+  }
+}
+
+}  // namespace tetcosim

@@ -1,0 +1,87 @@
+#pragma once
+
+// Penalty contact response (Heidelberger et al. 2004, section 4; method.md,
+// "Collision response"): a point A inside B at depth d along the unit
+// direction r (out of B) gets
+//   normal    f_n = k d + c max(0, -v_n),  v_n = (v_A - v_B) . r,  c = 2 zeta sqrt(k m)
+//   friction  f_t = -mu f_n v_t / sqrt(|v_t|^2 + v_s^2)   (smooth Coulomb, |f_t| < mu f_n)
+//   force on A = f_n r + f_t,  on B the opposite
+// where v_B is B's velocity at the point (the barycentric velocity of B's
+// containing tetrahedron, or a rigid body's point velocity) and m the
+// reduced mass of the pair. On a deformable B the reaction is spread over
+// the containing tetrahedron's vertices by barycentric weights w_i.
+// Derivatives for the implicit step (positive semi-definite, A's vertex;
+// B's vertices get them scaled by w_i^2):
+//   stiffness  -df/dx = k r r^T
+//   damping    -df/dv = c r r^T [approaching] + mu f_n / sqrt(|v_t|^2 + v_s^2) (I - r r^T)
+
+#include <Eigen/Core>
+#include <span>
+
+#include "deformable/deformable_body.h"
+
+namespace tetcosim {
+
+struct ContactPoint {
+  // A: the point that is inside. A deformable vertex (body_a >= 0), or a
+  // point of a rigid body (body_a = -1) moving at velocity_a.
+  int body_a = -1;
+  int vertex_a = -1;
+  Eigen::Vector3d velocity_a = Eigen::Vector3d::Zero();  // m/s, rigid A only
+  double mass_a = 0.0;  // kg, rigid A only: the body's mass (<= 0: B's mass alone)
+  // B: what A is inside. A deformable tetrahedron (body_b >= 0) with A's
+  // barycentric coordinates in it, or a rigid or static body (body_b = -1)
+  // whose point under A moves at velocity_b.
+  int body_b = -1;
+  int tet_b = -1;
+  Eigen::Vector4d barycentric_b = Eigen::Vector4d::Zero();
+  Eigen::Vector3d velocity_b = Eigen::Vector3d::Zero();  // m/s, rigid or static B only
+  double mass_b = 0.0;  // kg, rigid B only (<= 0: infinite, static)
+  // geometry and material
+  double depth = 0.0;                                    // m, >= 0
+  Eigen::Vector3d direction = Eigen::Vector3d::UnitZ();  // unit, out of B
+  double stiffness = 0.0;                                // k, N/m
+  double friction = 0.0;                                 // mu
+  // result: the force on A (newtons, world frame); B receives -force
+  Eigen::Vector3d force = Eigen::Vector3d::Zero();
+};
+
+struct ContactSettings {
+  double damping_ratio = 0.5;   // zeta: fraction of critical damping on approach
+  double slip_velocity = 1e-3;  // v_s, m/s: friction is smooth below this slip
+};
+
+// A contact's force at the current state and its derivatives (see above),
+// with the relative velocity at the contact and the constant part of it
+// that comes from rigid or static sides.
+struct ContactLinearization {
+  Eigen::Vector3d force;              // on A
+  Eigen::Matrix3d stiffness;          // -df/dx (relative position)
+  Eigen::Matrix3d damping;            // -df/dv (relative velocity)
+  Eigen::Vector3d relative_velocity;  // v_A - v_B
+  Eigen::Vector3d rigid_velocity;     // the part of it from rigid/static sides
+};
+ContactLinearization LinearizeContact(std::span<DeformableBody* const> bodies,
+                                      const ContactPoint& contact, const ContactSettings& settings);
+
+// The default contact stiffness per unit area and depth (Pa/m) of a body:
+// kappa = 10 E / L with L = (volume)^(1/3). A vertex standing for area a gets
+// k = kappa a, so the resting depth under a load p (Pa) is p / kappa, the
+// same at every mesh resolution; for a block of height H resting on its base,
+// d = rho g H L / (10 E) (0.1 mm for 10 cm of E = 1e5 Pa). The time step does
+// not enter: contact is integrated implicitly and stays stable for any k.
+double DefaultContactPressureStiffness(const FemModel& model);
+
+// Computes every contact's force and adds it, with its derivatives, to the
+// deformable bodies involved (bodies[i] for body index i).
+void ApplyContacts(std::span<DeformableBody* const> bodies, std::span<ContactPoint> contacts,
+                   const ContactSettings& settings);
+
+// Contacts of body `index` with the static half-space n . x <= offset (n
+// unit, pointing out of the solid): one per vertex below the plane, with
+// stiffness kappa * contact area.
+void AddHalfSpaceContacts(int index, const DeformableBody& body, const Eigen::Vector3d& normal,
+                          double offset, double kappa, double friction,
+                          std::vector<ContactPoint>& contacts);
+
+}  // namespace tetcosim

@@ -1,0 +1,168 @@
+#include "deformable/coupled_step.h"
+
+#include <cmath>
+
+namespace tetcosim {
+namespace {
+
+// a contact's coupling: u = J v + c, J = [+1 at A's vertex, -w_i at B's]
+struct Coupling {
+  int dof_a = -1;  // first global DoF of A's vertex, or -1
+  std::array<int, 4> dof_b{-1, -1, -1, -1};
+  Eigen::Vector4d w = Eigen::Vector4d::Zero();
+  Eigen::Matrix3d gain;  // dt^2 K + dt D
+  Eigen::Vector3d Jv(const Eigen::VectorXd& v) const {
+    Eigen::Vector3d u = Eigen::Vector3d::Zero();
+    if (dof_a >= 0) u += v.segment<3>(dof_a);
+    for (int i = 0; i < 4; ++i) {
+      if (dof_b[i] >= 0) u -= w[i] * v.segment<3>(dof_b[i]);
+    }
+    return u;
+  }
+  void AddJt(const Eigen::Vector3d& g, Eigen::VectorXd& y) const {
+    if (dof_a >= 0) y.segment<3>(dof_a) += g;
+    for (int i = 0; i < 4; ++i) {
+      if (dof_b[i] >= 0) y.segment<3>(dof_b[i]) -= w[i] * g;
+    }
+  }
+};
+
+}  // namespace
+
+CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
+                              std::span<ContactPoint> contacts,
+                              const ContactSettings& contact_settings,
+                              const StepSettings& settings) {
+  const double dt = settings.dt;
+  const int num_bodies = static_cast<int>(bodies.size());
+  std::vector<int> offset(num_bodies + 1, 0);
+  for (int k = 0; k < num_bodies; ++k) offset[k + 1] = offset[k] + 3 * bodies[k]->num_vertices();
+  const int n = offset[num_bodies];
+
+  // bodies' own systems and current velocities
+  Eigen::VectorXd v(n), b(n), diagonal(n);
+  std::vector<char> pinned(n, 0);
+  Eigen::VectorXd delta(n);
+  for (int k = 0; k < num_bodies; ++k) {
+    DeformableBody& body = *bodies[k];
+    body.PrepareStep(settings);
+    const int size = 3 * body.num_vertices();
+    v.segment(offset[k], size) = Eigen::Map<const Eigen::VectorXd>(body.velocities().data(), size);
+    b.segment(offset[k], size) = body.system_rhs();
+    diagonal.segment(offset[k], size) = body.system_matrix().diagonal();
+    const Eigen::VectorXd& last = body.last_velocity_change();
+    delta.segment(offset[k], size) = last.size() == size ? last : Eigen::VectorXd::Zero(size);
+    for (size_t i = 0; i < body.pinned_vertices().size(); ++i) {
+      const int dof = offset[k] + 3 * body.pinned_vertices()[i];
+      Eigen::Vector3d target = body.PinVelocity(i, dt);
+      for (int r = 0; r < 3; ++r) {
+        pinned[dof + r] = 1;
+        delta[dof + r] = target[r] - v[dof + r];
+      }
+    }
+  }
+
+  // contacts: forces into b, gains into the operator and the diagonal
+  std::vector<Coupling> couplings(contacts.size());
+  std::vector<ContactLinearization> linear(contacts.size());
+  for (size_t c = 0; c < contacts.size(); ++c) {
+    const ContactPoint& contact = contacts[c];
+    linear[c] = LinearizeContact(bodies, contact, contact_settings);
+    Coupling& coupling = couplings[c];
+    if (contact.body_a >= 0) coupling.dof_a = offset[contact.body_a] + 3 * contact.vertex_a;
+    if (contact.body_b >= 0) {
+      for (int i = 0; i < 4; ++i) {
+        coupling.dof_b[i] =
+            offset[contact.body_b] + 3 * bodies[contact.body_b]->mesh().tets()(contact.tet_b, i);
+        coupling.w[i] = contact.barycentric_b[i];
+      }
+    }
+    coupling.gain = dt * dt * linear[c].stiffness + dt * linear[c].damping;
+    // dt J^T (f - dt K c + D J v)
+    const Eigen::Vector3d rhs =
+        dt * (linear[c].force - dt * linear[c].stiffness * linear[c].rigid_velocity +
+              linear[c].damping * coupling.Jv(v));
+    coupling.AddJt(rhs, b);
+    if (coupling.dof_a >= 0) diagonal.segment<3>(coupling.dof_a) += coupling.gain.diagonal();
+    for (int i = 0; i < 4; ++i) {
+      if (coupling.dof_b[i] >= 0) {
+        diagonal.segment<3>(coupling.dof_b[i]) +=
+            coupling.w[i] * coupling.w[i] * coupling.gain.diagonal();
+      }
+    }
+  }
+
+  // y = A x
+  auto multiply = [&](const Eigen::VectorXd& x, Eigen::VectorXd& y) {
+    for (int k = 0; k < num_bodies; ++k) {
+      const int size = offset[k + 1] - offset[k];
+      y.segment(offset[k], size).noalias() =
+          bodies[k]->system_matrix() * x.segment(offset[k], size);
+    }
+    for (const Coupling& coupling : couplings) coupling.AddJt(coupling.gain * coupling.Jv(x), y);
+  };
+  auto filter = [&](Eigen::VectorXd& x) {
+    for (int i = 0; i < n; ++i) {
+      if (pinned[i]) x[i] = 0.0;
+    }
+  };
+
+  // filtered, Jacobi-preconditioned CG on A dv = b - A v
+  Eigen::VectorXd Av(n), r(n), z(n), p(n), q(n);
+  multiply(v, Av);
+  Eigen::VectorXd rhs = b - Av;
+  filter(rhs);
+  const double rhs_norm = rhs.norm();
+  multiply(delta, q);
+  r = b - Av - q;
+  filter(r);
+  Eigen::VectorXd inverse_diagonal = diagonal.cwiseInverse();
+  z = inverse_diagonal.cwiseProduct(r);
+  p = z;
+  double rz = r.dot(z);
+  CoupledStepReport report;
+  const double threshold = settings.cg_tolerance * rhs_norm;
+  int iteration = 0;
+  while (r.norm() > threshold && iteration < settings.cg_max_iterations) {
+    multiply(p, q);
+    filter(q);
+    const double pq = p.dot(q);
+    if (!(pq > 0.0)) break;  // not positive definite along p (or NaN): stop
+    const double alpha = rz / pq;
+    delta += alpha * p;
+    r -= alpha * q;
+    z = inverse_diagonal.cwiseProduct(r);
+    const double rz_next = r.dot(z);
+    p = z + (rz_next / rz) * p;
+    rz = rz_next;
+    ++iteration;
+  }
+  report.iterations = iteration;
+  report.residual = rhs_norm > 0.0 ? r.norm() / rhs_norm : 0.0;
+
+  // the forces actually integrated, and the pin residuals
+  const Eigen::VectorXd v_new = v + delta;
+  for (size_t c = 0; c < contacts.size(); ++c) {
+    const Coupling& coupling = couplings[c];
+    const Eigen::Vector3d Jv_new = coupling.Jv(v_new);
+    contacts[c].force = linear[c].force -
+                        dt * linear[c].stiffness * (Jv_new + linear[c].rigid_velocity) -
+                        linear[c].damping * (Jv_new - coupling.Jv(v));
+  }
+  Eigen::VectorXd residual(n);
+  multiply(v_new, residual);
+  residual -= b;
+  for (int k = 0; k < num_bodies; ++k) {
+    const int size = offset[k + 1] - offset[k];
+    StepReport body_report = bodies[k]->FinishStep(v_new.segment(offset[k], size),
+                                                   residual.segment(offset[k], size), settings);
+    if (body_report.status != StepStatus::kOk && report.status == StepStatus::kOk) {
+      report.status = body_report.status;
+      report.bad_body = k;
+      report.bad_vertex = body_report.bad_vertex;
+    }
+  }
+  return report;
+}
+
+}  // namespace tetcosim

@@ -1,0 +1,40 @@
+#pragma once
+
+// One backward-Euler step of several deformable bodies coupled through their
+// contacts, solved as one linear system so that contact forces stay exactly
+// equal and opposite (total momentum is conserved up to the solver's
+// tolerance). Each contact c couples the relative velocity at the contact,
+//   u_c = J_c v + c_c   (A's vertex minus B's barycentric point; c_c holds a
+//                        rigid side's known point velocity),
+// and its force is integrated as
+//   f_c(v+) = f_c - K_c dt u_c(v+) - D_c (J_c v+ - J_c v),
+// giving
+//   [A_bodies + sum_c J_c^T (dt^2 K_c + dt D_c) J_c] v+
+//       = b_bodies + dt sum_c J_c^T (f_c - dt K_c c_c + D_c J_c v).
+// Solved for the velocity change by Jacobi-preconditioned conjugate
+// gradients, filtered on pinned degrees of freedom (Baraff and Witkin 1998),
+// warm-started from each body's last change. After the step, every
+// contact's `force` is the force actually integrated (what a rigid side must
+// receive, opposite).
+
+#include <span>
+
+#include "deformable/contact.h"
+#include "deformable/deformable_body.h"
+
+namespace tetcosim {
+
+struct CoupledStepReport {
+  StepStatus status = StepStatus::kOk;
+  int bad_body = -1;  // with kDiverged: the body and vertex
+  int bad_vertex = -1;
+  int iterations = 0;
+  double residual = 0.0;  // relative
+};
+
+CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
+                              std::span<ContactPoint> contacts,
+                              const ContactSettings& contact_settings,
+                              const StepSettings& settings);
+
+}  // namespace tetcosim

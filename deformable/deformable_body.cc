@@ -1,0 +1,377 @@
+#include "deformable/deformable_body.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "deformable/corotational.h"
+#include "mesh/error.h"
+
+namespace tetcosim {
+
+DeformableBody::DeformableBody(std::shared_ptr<const FemModel> model, std::string name)
+    : model_(std::move(model)), name_(std::move(name)) {
+  const int n = model_->num_vertices();
+  x_ = model_->mesh().positions();
+  v_.setZero(n, 3);
+  applied_.setZero(n, 3);
+  contact_force_.setZero(n, 3);
+  contact_ku_.setZero(n, 3);
+  contact_stiffness_.assign(n, Eigen::Matrix3d::Zero());
+  contact_damping_.assign(n, Eigen::Matrix3d::Zero());
+  is_loaded_.assign(n, 0);
+  rotations_.assign(model_->num_tets(), Eigen::Quaterniond::Identity());
+  // the system matrix on the model's pattern (values refilled every step)
+  const std::vector<int>& row_start = model_->row_start();
+  const std::vector<int>& columns = model_->columns();
+  A_.resize(3 * n, 3 * n);
+  A_.reserve(static_cast<Eigen::Index>(columns.size()));
+  std::vector<Eigen::Triplet<double>> triplets;
+  triplets.reserve(columns.size());
+  for (int row = 0; row < 3 * n; ++row) {
+    for (int k = row_start[row]; k < row_start[row + 1]; ++k)
+      triplets.emplace_back(row, columns[k], 1.0);
+  }
+  A_.setFromTriplets(triplets.begin(), triplets.end());
+  A_.makeCompressed();
+  b_.setZero(3 * n);
+  solution_.setZero(3 * n);
+}
+
+void DeformableBody::Reset(const Eigen::Isometry3d& X_WB, const Eigen::Vector3d& v) {
+  const Positions& rest = model_->mesh().positions();
+  for (Eigen::Index i = 0; i < rest.rows(); ++i) {
+    x_.row(i) = (X_WB * rest.row(i).transpose()).transpose();
+    v_.row(i) = v.transpose();
+  }
+  Eigen::Quaterniond q(X_WB.rotation());
+  rotations_.assign(model_->num_tets(), q);
+}
+
+void DeformableBody::Pin(int vertex) {
+  if (vertex < 0 || vertex >= num_vertices()) {
+    throw Error(name_ + ": pinned vertex " + std::to_string(vertex) + " is out of range");
+  }
+  auto it = std::lower_bound(pinned_.begin(), pinned_.end(), vertex);
+  size_t index = static_cast<size_t>(it - pinned_.begin());
+  if (it != pinned_.end() && *it == vertex) {
+    pin_kinematic_[index] = 0;
+    pin_target_[index] = x_.row(vertex).transpose();
+    return;
+  }
+  pinned_.insert(it, vertex);
+  pin_kinematic_.insert(pin_kinematic_.begin() + static_cast<long>(index), 0);
+  pin_target_.insert(pin_target_.begin() + static_cast<long>(index), x_.row(vertex).transpose());
+  pin_forces_.assign(pinned_.size(), Eigen::Vector3d::Zero());
+}
+
+void DeformableBody::PinToFrame(const std::vector<int>& vertices, const Eigen::Isometry3d& X_WT) {
+  X_WT_ = X_WT;
+  for (int v : vertices) {
+    Pin(v);
+    auto index =
+        static_cast<size_t>(std::lower_bound(pinned_.begin(), pinned_.end(), v) - pinned_.begin());
+    pin_kinematic_[index] = 1;
+    pin_target_[index] = X_WT.inverse() * x_.row(v).transpose();
+  }
+}
+
+void DeformableBody::AddContactLoad(int vertex, const Eigen::Vector3d& force,
+                                    const Eigen::Matrix3d& stiffness,
+                                    const Eigen::Matrix3d& damping,
+                                    const Eigen::Vector3d& stiffness_times_velocity) {
+  contact_force_.row(vertex) += force.transpose();
+  contact_ku_.row(vertex) += stiffness_times_velocity.transpose();
+  contact_stiffness_[vertex] += stiffness;
+  contact_damping_[vertex] += damping;
+  if (!is_loaded_[vertex]) {
+    is_loaded_[vertex] = 1;
+    loaded_.push_back(vertex);
+  }
+}
+
+// A = (1 + dt alpha) M + (dt beta + dt^2) K + dt^2 Kc + dt Dc
+// b = M v + dt (f_elastic + M g + f_applied + fc + Dc v + dt Kc u)
+void DeformableBody::Assemble(const StepSettings& settings) {
+  const FemModel& model = *model_;
+  const TetMesh& mesh = model.mesh();
+  const double dt = settings.dt;
+  const double mu = model.mu();
+  const double lambda = model.lambda();
+  const double stiffness_scale = dt * model.material().damping_stiffness + dt * dt;
+  const double mass_scale = 1.0 + dt * model.material().damping_mass;
+  double* values = A_.valuePtr();
+  const std::vector<int>& row_start = model.row_start();
+  std::fill(values, values + A_.nonZeros(), 0.0);
+  b_.setZero();
+
+  for (int t = 0; t < model.num_tets(); ++t) {
+    const auto tet = mesh.tets().row(t);
+    const Eigen::Matrix<double, 4, 3>& grad = model.gradients()[t];
+    Eigen::Vector3d x[4];
+    for (int i = 0; i < 4; ++i) x[i] = x_.row(tet[i]).transpose();
+    const Eigen::Matrix3d F = DeformationGradient(grad, x);
+    const Eigen::Matrix3d R =
+        ExtractRotation(F, rotations_[t], settings.rotation_iterations, 1e-10);
+    const double volume = mesh.rest_volumes()[t];
+    // f_i = -V P b_i
+    const Eigen::Matrix3d VP = volume * CorotatedStress(F, R, mu, lambda);
+    for (int i = 0; i < 4; ++i)
+      b_.segment<3>(3 * tet[i]).noalias() -= dt * VP * grad.row(i).transpose();
+    // K_ij = V [lambda c_i c_j^T + mu c_j c_i^T + mu (b_i . b_j) I], c_i = R b_i
+    const Eigen::Matrix<double, 4, 3> c = grad * R.transpose();
+    const double s = stiffness_scale * volume;
+    const std::array<int, 16>& slots = model.element_slots()[t];
+    for (int a = 0; a < 4; ++a) {
+      for (int bb = 0; bb < 4; ++bb) {
+        Eigen::Matrix3d block = (s * lambda) * c.row(a).transpose() * c.row(bb) +
+                                (s * mu) * c.row(bb).transpose() * c.row(a);
+        block.diagonal().array() += s * mu * grad.row(a).dot(grad.row(bb));
+        for (int r = 0; r < 3; ++r) {
+          double* row = values + row_start[3 * tet[a] + r] + slots[4 * a + bb];
+          row[0] += block(r, 0);
+          row[1] += block(r, 1);
+          row[2] += block(r, 2);
+        }
+      }
+    }
+  }
+  const Eigen::VectorXd& masses = model.masses();
+  for (int v = 0; v < model.num_vertices(); ++v) {
+    const double m = masses[v];
+    for (int r = 0; r < 3; ++r)
+      values[row_start[3 * v + r] + model.diagonal_slot()[v] + r] += mass_scale * m;
+    b_.segment<3>(3 * v) +=
+        m * v_.row(v).transpose() + dt * (m * settings.gravity + applied_.row(v).transpose() +
+                                          contact_force_.row(v).transpose());
+  }
+  for (int v : loaded_) {
+    const Eigen::Matrix3d block = dt * dt * contact_stiffness_[v] + dt * contact_damping_[v];
+    for (int r = 0; r < 3; ++r) {
+      double* row = values + row_start[3 * v + r] + model.diagonal_slot()[v];
+      for (int k = 0; k < 3; ++k) row[k] += block(r, k);
+    }
+    b_.segment<3>(3 * v) +=
+        dt * contact_damping_[v] * v_.row(v).transpose() + dt * dt * contact_ku_.row(v).transpose();
+  }
+}
+
+// pinned DoFs: v+ = (target - x) / dt, eliminated from the system symmetrically
+void DeformableBody::ApplyPins(const StepSettings& settings) {
+  if (pinned_.empty()) return;
+  const FemModel& model = *model_;
+  const std::vector<int>& row_start = model.row_start();
+  const std::vector<int>& columns = model.columns();
+  double* values = A_.valuePtr();
+  // keep the original rows for the pin forces
+  pinned_rows_.clear();
+  pinned_b_.resize(3 * static_cast<Eigen::Index>(pinned_.size()));
+  for (size_t i = 0; i < pinned_.size(); ++i) {
+    for (int r = 0; r < 3; ++r) {
+      int row = 3 * pinned_[i] + r;
+      pinned_rows_.insert(pinned_rows_.end(), values + row_start[row], values + row_start[row + 1]);
+      pinned_b_[3 * static_cast<Eigen::Index>(i) + r] = b_[row];
+    }
+  }
+  for (size_t i = 0; i < pinned_.size(); ++i) {
+    const int p = pinned_[i];
+    Eigen::Vector3d target =
+        pin_kinematic_[i] ? Eigen::Vector3d(X_WT_ * pin_target_[i]) : pin_target_[i];
+    Eigen::Vector3d velocity = (target - x_.row(p).transpose()) / settings.dt;
+    // move column p to the right-hand side in every other row
+    for (int k = row_start[3 * p]; k < row_start[3 * p + 1]; k += 3) {
+      const int u = columns[k] / 3;
+      if (u == p) continue;
+      int slot = model.diagonal_slot()[u];  // find p among u's columns
+      {
+        const int* begin = columns.data() + row_start[3 * u];
+        const int* end = columns.data() + row_start[3 * u + 1];
+        slot = static_cast<int>(std::lower_bound(begin, end, 3 * p) - begin);
+      }
+      for (int r = 0; r < 3; ++r) {
+        double* row = values + row_start[3 * u + r] + slot;
+        for (int c = 0; c < 3; ++c) {
+          b_[3 * u + r] -= row[c] * velocity[c];
+          row[c] = 0.0;
+        }
+      }
+    }
+    for (int r = 0; r < 3; ++r) {
+      int row = 3 * p + r;
+      std::fill(values + row_start[row], values + row_start[row + 1], 0.0);
+      values[row_start[row] + model.diagonal_slot()[p] + r] = 1.0;
+      b_[row] = velocity[r];
+    }
+  }
+}
+
+// solves for the velocity change dv = v+ - v: A dv = b - A v, so that the
+// solver's relative tolerance applies to the change, not to the momentum
+void DeformableBody::Solve(const StepSettings& settings, StepReport& report) {
+  Eigen::Map<const Eigen::VectorXd> v(v_.data(), v_.size());
+  rhs_.noalias() = b_ - A_ * v;
+  if (delta_v_.size() != rhs_.size()) delta_v_.setZero(rhs_.size());
+  if (settings.solver == LinearSolver::kConjugateGradient) {
+    cg_.setTolerance(settings.cg_tolerance);
+    cg_.setMaxIterations(settings.cg_max_iterations);
+    cg_.compute(A_);
+    delta_v_ = cg_.solveWithGuess(rhs_, delta_v_);  // warm start: the last change
+    report.iterations = static_cast<int>(cg_.iterations());
+    report.residual = cg_.error();
+  } else {
+    Eigen::SparseMatrix<double> A = A_;  // column-major copy (A is symmetric)
+    if (!ldlt_analyzed_) {
+      ldlt_.analyzePattern(A);
+      ldlt_analyzed_ = true;
+    }
+    ldlt_.factorize(A);
+    delta_v_ = ldlt_.solve(rhs_);
+    report.iterations = 0;
+    double norm = rhs_.norm();
+    report.residual = norm > 0.0 ? (A_ * delta_v_ - rhs_).norm() / norm : 0.0;
+  }
+  solution_ = v + delta_v_;
+}
+
+StepReport DeformableBody::Step(const StepSettings& settings) {
+  StepReport report;
+  Eigen::setNbThreads(std::max(1, settings.num_threads));
+  Assemble(settings);
+  ApplyPins(settings);
+  Solve(settings, report);
+
+  // commit only a finite state
+  const int n = num_vertices();
+  Eigen::Map<const Positions> v_new(solution_.data(), n, 3);
+  for (int v = 0; v < n; ++v) {
+    if (!v_new.row(v).allFinite() || !(x_.row(v) + settings.dt * v_new.row(v)).allFinite()) {
+      report.status = StepStatus::kDiverged;
+      report.bad_vertex = v;
+      break;
+    }
+  }
+  if (report.status == StepStatus::kOk) {
+    // pin forces: f_pin = (A_orig v+ - b_orig) / dt on the pinned rows
+    const std::vector<int>& row_start = model_->row_start();
+    const std::vector<int>& columns = model_->columns();
+    size_t offset = 0;
+    pin_forces_.assign(pinned_.size(), Eigen::Vector3d::Zero());
+    for (size_t i = 0; i < pinned_.size(); ++i) {
+      for (int r = 0; r < 3; ++r) {
+        int row = 3 * pinned_[i] + r;
+        double sum = 0.0;
+        for (int k = row_start[row]; k < row_start[row + 1]; ++k) {
+          sum += pinned_rows_[offset++] * solution_[columns[k]];
+        }
+        pin_forces_[i][r] = (sum - pinned_b_[3 * static_cast<Eigen::Index>(i) + r]) / settings.dt;
+      }
+    }
+    v_ = v_new;
+    x_ += settings.dt * v_;
+  }
+  // contact loads are for one step
+  for (int v : loaded_) {
+    contact_force_.row(v).setZero();
+    contact_ku_.row(v).setZero();
+    contact_stiffness_[v].setZero();
+    contact_damping_[v].setZero();
+    is_loaded_[v] = 0;
+  }
+  loaded_.clear();
+  return report;
+}
+
+void DeformableBody::PrepareStep(const StepSettings& settings) {
+  Eigen::setNbThreads(std::max(1, settings.num_threads));
+  Assemble(settings);
+}
+
+Eigen::Vector3d DeformableBody::PinVelocity(size_t i, double dt) const {
+  Eigen::Vector3d target =
+      pin_kinematic_[i] ? Eigen::Vector3d(X_WT_ * pin_target_[i]) : pin_target_[i];
+  return (target - x_.row(pinned_[i]).transpose()) / dt;
+}
+
+StepReport DeformableBody::FinishStep(const Eigen::VectorXd& v_new, const Eigen::VectorXd& residual,
+                                      const StepSettings& settings) {
+  StepReport report;
+  const int n = num_vertices();
+  Eigen::Map<const Positions> velocities(v_new.data(), n, 3);
+  for (int v = 0; v < n; ++v) {
+    if (!velocities.row(v).allFinite() ||
+        !(x_.row(v) + settings.dt * velocities.row(v)).allFinite()) {
+      report.status = StepStatus::kDiverged;
+      report.bad_vertex = v;
+      break;
+    }
+  }
+  if (report.status == StepStatus::kOk) {
+    pin_forces_.assign(pinned_.size(), Eigen::Vector3d::Zero());
+    for (size_t i = 0; i < pinned_.size(); ++i) {
+      pin_forces_[i] = residual.segment<3>(3 * pinned_[i]) / settings.dt;
+    }
+    delta_v_ = v_new - Eigen::Map<const Eigen::VectorXd>(v_.data(), v_.size());  // warm start
+    v_ = velocities;
+    x_ += settings.dt * v_;
+  }
+  return report;
+}
+
+Positions DeformableBody::ElasticForces() {
+  const FemModel& model = *model_;
+  Positions forces = Positions::Zero(num_vertices(), 3);
+  for (int t = 0; t < model.num_tets(); ++t) {
+    const auto tet = model.mesh().tets().row(t);
+    Eigen::Vector3d x[4];
+    for (int i = 0; i < 4; ++i) x[i] = x_.row(tet[i]).transpose();
+    const Eigen::Matrix3d F = DeformationGradient(model.gradients()[t], x);
+    // converged polar rotation: forces exactly the energy gradient
+    const Eigen::Matrix3d R = ExtractRotation(F, rotations_[t], 100, 1e-15);
+    const Eigen::Matrix3d VP =
+        model.mesh().rest_volumes()[t] * CorotatedStress(F, R, model.mu(), model.lambda());
+    for (int i = 0; i < 4; ++i)
+      forces.row(tet[i]) -= (VP * model.gradients()[t].row(i).transpose()).transpose();
+  }
+  return forces;
+}
+
+double DeformableBody::KineticEnergy() const {
+  return 0.5 * (model_->masses().array() * v_.rowwise().squaredNorm().array()).sum();
+}
+
+double DeformableBody::ElasticEnergy() const {
+  const FemModel& model = *model_;
+  double energy = 0.0;
+  for (int t = 0; t < model.num_tets(); ++t) {
+    Eigen::Vector3d x[4];
+    for (int i = 0; i < 4; ++i) x[i] = x_.row(model.mesh().tets()(t, i)).transpose();
+    Eigen::Matrix3d F = DeformationGradient(model.gradients()[t], x);
+    Eigen::Quaterniond q = rotations_[t];
+    Eigen::Matrix3d R = ExtractRotation(F, q);
+    energy +=
+        model.mesh().rest_volumes()[t] * CorotatedEnergyDensity(F, R, model.mu(), model.lambda());
+  }
+  return energy;
+}
+
+double DeformableBody::GravitationalEnergy(const Eigen::Vector3d& gravity) const {
+  return -(model_->masses().transpose() * (x_ * gravity))(0);
+}
+
+Eigen::Vector3d DeformableBody::LinearMomentum() const {
+  return (v_.array().colwise() * model_->masses().array()).colwise().sum().transpose();
+}
+
+Eigen::Vector3d DeformableBody::AngularMomentum() const {
+  Eigen::Vector3d L = Eigen::Vector3d::Zero();
+  for (int v = 0; v < num_vertices(); ++v) {
+    L += model_->masses()[v] * x_.row(v).transpose().cross(v_.row(v).transpose());
+  }
+  return L;
+}
+
+Eigen::Vector3d DeformableBody::CenterOfMass() const {
+  return (x_.array().colwise() * model_->masses().array()).colwise().sum().transpose() /
+         model_->total_mass();
+}
+
+}  // namespace tetcosim

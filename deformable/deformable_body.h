@@ -1,0 +1,168 @@
+#pragma once
+
+// A deformable body: per-body state (positions, velocities, element
+// rotations, pins, loads) over shared rest data (FemModel), advanced by one
+// linearised backward-Euler step:
+//
+//   M (v+ - v) = dt [ f(x + dt v+, v+) ]   linearised at (x, v):
+//   (M + dt C + dt^2 K + dt^2 Kc + dt Dc) v+ = M v + dt (f + fc + Dc v)
+//   x+ = x + dt v+
+//
+// with K the co-rotated stiffness (corotational.h), C = alpha M + beta K the
+// Rayleigh damping, f = elastic + gravity + applied forces, and fc, Kc, Dc
+// the contact forces and their (positive semi-definite) stiffness and
+// damping blocks, so that stiff contact is integrated implicitly too.
+// Pinned vertices are held at their targets; the force that holds them is
+// reported.
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <Eigen/Sparse>
+#include <Eigen/SparseCholesky>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "deformable/fem_model.h"
+
+namespace tetcosim {
+
+enum class LinearSolver {
+  kConjugateGradient,  // Jacobi-preconditioned CG, warm-started from the last velocity
+  kCholesky,           // sparse LDL^T, symbolic analysis once
+};
+
+struct StepSettings {
+  double dt = 1e-3;                                        // s, > 0
+  Eigen::Vector3d gravity = Eigen::Vector3d(0, 0, -9.81);  // m/s^2
+  LinearSolver solver = LinearSolver::kConjugateGradient;
+  // CG stops at this residual relative to the right-hand side of the system
+  // for the velocity change, A dv = b - A v.
+  double cg_tolerance = 1e-6;
+  int cg_max_iterations = 1000;
+  // Polar-decomposition iterations per element and step (warm-started; each
+  // stops once the rotation changes by less than 1e-10 rad). Stopping short
+  // of convergence leaves a lagged rotation that injects energy: keep >= 8.
+  int rotation_iterations = 20;
+  int num_threads = 1;  // for the element loop and the solver
+};
+
+enum class StepStatus { kOk, kDiverged };
+
+struct StepReport {
+  StepStatus status = StepStatus::kOk;
+  int bad_vertex = -1;    // first vertex with a non-finite state (kDiverged)
+  int iterations = 0;     // CG iterations (0 for the direct solver)
+  double residual = 0.0;  // relative residual of the linear solve
+};
+
+class DeformableBody {
+ public:
+  DeformableBody(std::shared_ptr<const FemModel> model, std::string name);
+
+  const std::string& name() const { return name_; }
+  const FemModel& model() const { return *model_; }
+  const TetMesh& mesh() const { return model_->mesh(); }
+  int num_vertices() const { return model_->num_vertices(); }
+
+  // State: #V x 3, world frame, metres and metres per second.
+  const Positions& positions() const { return x_; }
+  const Positions& velocities() const { return v_; }
+  Positions& mutable_positions() { return x_; }
+  Positions& mutable_velocities() { return v_; }
+  // Places the rest shape by X_WB and sets every velocity to v.
+  void Reset(const Eigen::Isometry3d& X_WB, const Eigen::Vector3d& v = Eigen::Vector3d::Zero());
+
+  // Applied forces (#V x 3, newtons, world frame): kept until changed.
+  Positions& applied_forces() { return applied_; }
+
+  // Pins: vertex v held at its current position, or (kinematic) following
+  // X_WT * p_T where p_T is its position in the frame T given by X_WT now.
+  void Pin(int vertex);
+  void PinToFrame(const std::vector<int>& vertices, const Eigen::Isometry3d& X_WT);
+  // Moves the kinematic frame for the next step.
+  void SetPinFrame(const Eigen::Isometry3d& X_WT) { X_WT_ = X_WT; }
+  const std::vector<int>& pinned_vertices() const { return pinned_; }
+  // Force the pins applied to each pinned vertex in the last step (N, world).
+  const std::vector<Eigen::Vector3d>& pin_forces() const { return pin_forces_; }
+
+  // Contact loads for the next step, cleared by Step(): force on vertex v,
+  // its stiffness K (-df/dx) and damping D (-df/dv) blocks (symmetric
+  // positive semi-definite), and K u where u is the velocity the vertex would
+  // need to keep the force's depth (the other side's velocity at the
+  // contact). The step integrates the force as
+  //   f(v+) = force - K dt (v+ - u) - D (v+ - v)
+  // so that bodies moving together feel no spurious drag.
+  void AddContactLoad(int vertex, const Eigen::Vector3d& force, const Eigen::Matrix3d& stiffness,
+                      const Eigen::Matrix3d& damping,
+                      const Eigen::Vector3d& stiffness_times_velocity);
+  const Positions& contact_forces() const { return contact_force_; }
+
+  // Advances the state by settings.dt. A non-finite result is not committed:
+  // the state stays as it was and the report says kDiverged with the vertex.
+  StepReport Step(const StepSettings& settings);
+
+  // Pieces of a step, for stepping bodies coupled by contact
+  // (coupled_step.h). PrepareStep assembles the system A v+ = b (without the
+  // pins, which the caller prescribes); FinishStep commits v+ (#V x 3, flat)
+  // if finite, and takes the pin forces from residual = A_total v+ - b_total.
+  void PrepareStep(const StepSettings& settings);
+  const Eigen::SparseMatrix<double, Eigen::RowMajor, int>& system_matrix() const { return A_; }
+  const Eigen::VectorXd& system_rhs() const { return b_; }
+  // Velocity that takes pinned vertex pinned_vertices()[i] to its target.
+  Eigen::Vector3d PinVelocity(size_t i, double dt) const;
+  StepReport FinishStep(const Eigen::VectorXd& v_new, const Eigen::VectorXd& residual,
+                        const StepSettings& settings);
+  // The last step's velocity change (3V), a warm start for the next.
+  const Eigen::VectorXd& last_velocity_change() const { return delta_v_; }
+
+  // Diagnostics (joules, kg m/s, kg m^2/s; about the world origin).
+  double KineticEnergy() const;
+  double ElasticEnergy() const;
+  double GravitationalEnergy(const Eigen::Vector3d& gravity) const;
+  Eigen::Vector3d LinearMomentum() const;
+  Eigen::Vector3d AngularMomentum() const;
+  Eigen::Vector3d CenterOfMass() const;
+  // Elastic forces at the current positions (#V x 3, newtons), updating the
+  // element rotations from their warm start.
+  Positions ElasticForces();
+  // Element rotations from the last step (#T).
+  const std::vector<Eigen::Quaterniond>& rotations() const { return rotations_; }
+
+ private:
+  using SparseMatrix = Eigen::SparseMatrix<double, Eigen::RowMajor, int>;
+
+  void Assemble(const StepSettings& settings);
+  void ApplyPins(const StepSettings& settings);
+  void Solve(const StepSettings& settings, StepReport& report);
+
+  std::shared_ptr<const FemModel> model_;
+  std::string name_;
+  Positions x_, v_;
+  Positions applied_;
+  std::vector<Eigen::Quaterniond> rotations_;
+
+  std::vector<int> pinned_;                  // ascending
+  std::vector<char> pin_kinematic_;          // per pin
+  std::vector<Eigen::Vector3d> pin_target_;  // fixed pins: world; kinematic: in frame T
+  Eigen::Isometry3d X_WT_ = Eigen::Isometry3d::Identity();
+  std::vector<Eigen::Vector3d> pin_forces_;
+
+  Positions contact_force_;
+  std::vector<Eigen::Matrix3d> contact_stiffness_, contact_damping_;
+  Positions contact_ku_;     // #V x 3: sum of K u
+  std::vector<int> loaded_;  // vertices with contact blocks
+  std::vector<char> is_loaded_;
+
+  // the linear system
+  SparseMatrix A_;
+  Eigen::VectorXd b_, solution_;
+  Eigen::VectorXd rhs_, delta_v_;    // A dv = b - A v, and the last dv (warm start)
+  std::vector<double> pinned_rows_;  // original rows of pinned DoFs, for pin forces
+  Eigen::VectorXd pinned_b_;
+  Eigen::ConjugateGradient<SparseMatrix, Eigen::Lower | Eigen::Upper> cg_;
+  Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> ldlt_;
+  bool ldlt_analyzed_ = false;
+};
+
+}  // namespace tetcosim

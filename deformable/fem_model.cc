@@ -1,0 +1,94 @@
+#include "deformable/fem_model.h"
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <cmath>
+
+#include "deformable/corotational.h"
+
+namespace tetcosim {
+
+std::shared_ptr<const FemModel> FemModel::Build(std::shared_ptr<const TetMesh> mesh,
+                                                const Material& material, const char* where) {
+  material.Validate(where);
+  auto model = std::shared_ptr<FemModel>(new FemModel());
+  model->mesh_ = std::move(mesh);
+  model->material_ = material;
+  model->mu_ = material.Mu();
+  model->lambda_ = material.Lambda();
+  const TetMesh& m = *model->mesh_;
+  const int num_vertices = m.num_vertices();
+  const int num_tets = m.num_tets();
+
+  // gradients, masses, volume shares
+  model->gradients_.resize(num_tets);
+  model->masses_.setZero(num_vertices);
+  Eigen::VectorXd volume_share = Eigen::VectorXd::Zero(num_vertices);
+  for (int t = 0; t < num_tets; ++t) {
+    Eigen::Vector3d X[4];
+    for (int i = 0; i < 4; ++i) X[i] = m.positions().row(m.tets()(t, i)).transpose();
+    model->gradients_[t] = ShapeGradients(X);
+    double volume = m.rest_volumes()[t];
+    for (int i = 0; i < 4; ++i) {
+      model->masses_[m.tets()(t, i)] += material.density * volume / 4.0;
+      volume_share[m.tets()(t, i)] += volume / 4.0;
+    }
+  }
+  model->total_mass_ = model->masses_.sum();
+  model->characteristic_length_ = std::cbrt(m.total_volume());
+
+  // contact areas
+  model->contact_areas_.setZero(num_vertices);
+  for (Eigen::Index f = 0; f < m.surface().rows(); ++f) {
+    Eigen::Vector3d a = m.positions().row(m.surface()(f, 0));
+    Eigen::Vector3d b = m.positions().row(m.surface()(f, 1));
+    Eigen::Vector3d c = m.positions().row(m.surface()(f, 2));
+    double area = 0.5 * (b - a).cross(c - a).norm();
+    for (int k = 0; k < 3; ++k) model->contact_areas_[m.surface()(f, k)] += area / 3.0;
+  }
+  for (int v = 0; v < num_vertices; ++v) {
+    if (!m.is_surface_vertex(v)) model->contact_areas_[v] = std::pow(volume_share[v], 2.0 / 3.0);
+  }
+
+  // sparsity: vertex v couples with itself and its edge neighbours
+  const auto& offsets = m.adjacency_offsets();
+  const auto& adjacency = m.adjacency();
+  model->row_start_.assign(3 * num_vertices + 1, 0);
+  model->diagonal_slot_.resize(num_vertices);
+  std::vector<std::vector<int>> neighbours(num_vertices);
+  for (int v = 0; v < num_vertices; ++v) {
+    std::vector<int>& row = neighbours[v];
+    row.assign(adjacency.begin() + offsets[v], adjacency.begin() + offsets[v + 1]);
+    row.push_back(v);
+    std::sort(row.begin(), row.end());
+    model->diagonal_slot_[v] =
+        3 * static_cast<int>(std::lower_bound(row.begin(), row.end(), v) - row.begin());
+    for (int r = 0; r < 3; ++r) {
+      model->row_start_[3 * v + r + 1] =
+          model->row_start_[3 * v + r] + 3 * static_cast<int>(row.size());
+    }
+  }
+  model->columns_.resize(model->row_start_.back());
+  for (int v = 0; v < num_vertices; ++v) {
+    for (int r = 0; r < 3; ++r) {
+      int position = model->row_start_[3 * v + r];
+      for (int u : neighbours[v]) {
+        for (int c = 0; c < 3; ++c) model->columns_[position++] = 3 * u + c;
+      }
+    }
+  }
+  model->element_slots_.resize(num_tets);
+  for (int t = 0; t < num_tets; ++t) {
+    for (int a = 0; a < 4; ++a) {
+      const std::vector<int>& row = neighbours[m.tets()(t, a)];
+      for (int b = 0; b < 4; ++b) {
+        int u = m.tets()(t, b);
+        model->element_slots_[t][4 * a + b] =
+            3 * static_cast<int>(std::lower_bound(row.begin(), row.end(), u) - row.begin());
+      }
+    }
+  }
+  return model;
+}
+
+}  // namespace tetcosim

@@ -1,0 +1,72 @@
+#pragma once
+
+// Rest data of a deformable body, built once and shared by every body that
+// uses the same mesh and material: shape-function gradients, volumes, lumped
+// masses, contact areas, and the sparsity pattern of the implicit system.
+
+#include <Eigen/Core>
+#include <array>
+#include <memory>
+#include <vector>
+
+#include "deformable/material.h"
+#include "mesh/tet_mesh.h"
+
+namespace tetcosim {
+
+class FemModel {
+ public:
+  // Throws Error if the material is invalid (`where` names the body).
+  static std::shared_ptr<const FemModel> Build(std::shared_ptr<const TetMesh> mesh,
+                                               const Material& material,
+                                               const char* where = "body");
+
+  const TetMesh& mesh() const { return *mesh_; }
+  const std::shared_ptr<const TetMesh>& mesh_ptr() const { return mesh_; }
+  const Material& material() const { return material_; }
+  double mu() const { return mu_; }
+  double lambda() const { return lambda_; }
+  int num_vertices() const { return mesh_->num_vertices(); }
+  int num_tets() const { return mesh_->num_tets(); }
+
+  // Shape-function gradients b_0..b_3 of each tetrahedron (#T, 4 x 3, 1/m).
+  const std::vector<Eigen::Matrix<double, 4, 3>>& gradients() const { return gradients_; }
+  // Lumped vertex masses (#V, kg): a quarter of each incident tet's mass.
+  const Eigen::VectorXd& masses() const { return masses_; }
+  double total_mass() const { return total_mass_; }
+  // Area each vertex stands for in contact (#V, m^2): a third of the incident
+  // surface triangles' area for surface vertices, (volume share)^(2/3) for
+  // interior ones.
+  const Eigen::VectorXd& contact_areas() const { return contact_areas_; }
+  // (total volume)^(1/3), metres: the body's size for default stiffnesses.
+  double characteristic_length() const { return characteristic_length_; }
+
+  // Sparsity of the 3V x 3V system in compressed rows: vertex v's rows
+  // 3v..3v+2 hold the columns of v and its neighbours, three each, ascending.
+  const std::vector<int>& row_start() const { return row_start_; }  // 3V + 1
+  const std::vector<int>& columns() const { return columns_; }
+  // For tet t and local vertices (a, b): where the columns of vertex b start
+  // in the rows of vertex a, relative to each row's start.
+  const std::vector<std::array<int, 16>>& element_slots() const { return element_slots_; }
+  // Where the columns of vertex v start in its own rows.
+  const std::vector<int>& diagonal_slot() const { return diagonal_slot_; }
+
+ private:
+  FemModel() = default;
+
+  std::shared_ptr<const TetMesh> mesh_;
+  Material material_;
+  double mu_ = 0.0;
+  double lambda_ = 0.0;
+  std::vector<Eigen::Matrix<double, 4, 3>> gradients_;
+  Eigen::VectorXd masses_;
+  double total_mass_ = 0.0;
+  Eigen::VectorXd contact_areas_;
+  double characteristic_length_ = 0.0;
+  std::vector<int> row_start_;
+  std::vector<int> columns_;
+  std::vector<std::array<int, 16>> element_slots_;
+  std::vector<int> diagonal_slot_;
+};
+
+}  // namespace tetcosim
