@@ -1,5 +1,6 @@
 #include "deformable/corotational.h"
 
+#include <Eigen/LU>
 #include <cmath>
 
 namespace tetcosim {
@@ -7,18 +8,42 @@ namespace tetcosim {
 Eigen::Matrix3d ExtractRotation(const Eigen::Matrix3d& A, Eigen::Quaterniond& q, int max_iterations,
                                 double tolerance) {
   for (int iteration = 0; iteration < max_iterations; ++iteration) {
-    Eigen::Matrix3d R = q.toRotationMatrix();
-    // omega = sum_i r_i x a_i / (|sum_i r_i . a_i| + eps): the rotation that
-    // increases tr(R^T A) (Muller et al. 2016, eq. 7)
-    Eigen::Vector3d omega =
-        R.col(0).cross(A.col(0)) + R.col(1).cross(A.col(1)) + R.col(2).cross(A.col(2));
-    double denominator =
-        std::abs(R.col(0).dot(A.col(0)) + R.col(1).dot(A.col(1)) + R.col(2).dot(A.col(2))) + 1e-9;
-    omega /= denominator;
-    double angle = omega.norm();
+    const Eigen::Matrix3d R = q.toRotationMatrix();
+    // maximise tr(R^T A) over R = R Exp(w), w in R's own frame. With
+    // B = R^T A the gradient is g = axial(B - B^T) (= R^T sum_i r_i x a_i,
+    // Muller et al. 2016) and the Hessian H = tr(B) I - sym(B); take the
+    // Newton step H^-1 g where H is positive definite (quadratic
+    // convergence), else Muller's step g / |tr(B)| (robust for inverted A)
+    const Eigen::Matrix3d B = R.transpose() * A;
+    const Eigen::Vector3d g(B(2, 1) - B(1, 2), B(0, 2) - B(2, 0), B(1, 0) - B(0, 1));
+    Eigen::Matrix3d H = -0.5 * (B + B.transpose());
+    H.diagonal().array() += B.trace();
+    Eigen::Vector3d omega;
+    // H is symmetric; positive definite iff its leading minors are positive
+    const double m1 = H(0, 0);
+    const double m2 = H(0, 0) * H(1, 1) - H(0, 1) * H(1, 0);
+    const double m3 = H.determinant();
+    const double scale = std::abs(B.trace()) + 1e-300;
+    const bool newton =
+        m1 > 1e-6 * scale && m2 > 1e-6 * scale * scale && m3 > 1e-6 * scale * scale * scale;
+    if (newton) {
+      omega = H.inverse() * g;
+    } else {
+      omega = g / (std::abs(B.trace()) + 1e-9);
+    }
+    const double angle = omega.norm();
     if (!(angle >= tolerance)) break;  // converged (or NaN input: keep q)
-    q = Eigen::Quaterniond(Eigen::AngleAxisd(angle, omega / angle)) * q;
+    if (angle > 0.1) {
+      q = q * Eigen::Quaterniond(Eigen::AngleAxisd(angle, omega / angle));
+    } else {
+      // small update: Exp(w / 2) ~ (1, w / 2) without trigonometry; the
+      // fixed point (w = 0) is the same
+      q = q * Eigen::Quaterniond(1.0, 0.5 * omega.x(), 0.5 * omega.y(), 0.5 * omega.z());
+    }
     q.normalize();
+    // a Newton step converges quadratically: the next step would be of the
+    // order of angle^2, below the tolerance, so stop without computing it
+    if (newton && angle * angle < 0.1 * tolerance) break;
   }
   return q.toRotationMatrix();
 }

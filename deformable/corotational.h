@@ -25,9 +25,11 @@
 
 namespace tetcosim {
 
-// Rotational part of A, by the iteration of Muller, Bender, Chentanez and
-// Macklin ("A Robust Method to Extract the Rotational Part of
-// Deformations", MIG 2016), warm-started from q (updated in place). Stops
+// Rotational part of A: the rotation R maximising tr(R^T A), found from the
+// warm start q (updated in place) by Newton steps on the rotation, falling
+// back to the gradient step of Muller, Bender, Chentanez and Macklin ("A
+// Robust Method to Extract the Rotational Part of Deformations", MIG 2016)
+// where the Newton step is not defined (inverted or degenerate A). Stops
 // when the update angle is below `tolerance` radians or after
 // `max_iterations`. Always returns a proper rotation.
 Eigen::Matrix3d ExtractRotation(const Eigen::Matrix3d& A, Eigen::Quaterniond& q,

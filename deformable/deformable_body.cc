@@ -104,33 +104,62 @@ void DeformableBody::Assemble(const StepSettings& settings) {
   std::fill(values, values + A_.nonZeros(), 0.0);
   b_.setZero();
 
-  for (int t = 0; t < model.num_tets(); ++t) {
-    const auto tet = mesh.tets().row(t);
-    const Eigen::Matrix<double, 4, 3>& grad = model.gradients()[t];
-    Eigen::Vector3d x[4];
-    for (int i = 0; i < 4; ++i) x[i] = x_.row(tet[i]).transpose();
-    const Eigen::Matrix3d F = DeformationGradient(grad, x);
-    const Eigen::Matrix3d R =
-        ExtractRotation(F, rotations_[t], settings.rotation_iterations, 1e-10);
-    const double volume = mesh.rest_volumes()[t];
-    // f_i = -V P b_i
-    const Eigen::Matrix3d VP = volume * CorotatedStress(F, R, mu, lambda);
-    for (int i = 0; i < 4; ++i)
-      b_.segment<3>(3 * tet[i]).noalias() -= dt * VP * grad.row(i).transpose();
-    // K_ij = V [lambda c_i c_j^T + mu c_j c_i^T + mu (b_i . b_j) I], c_i = R b_i
-    const Eigen::Matrix<double, 4, 3> c = grad * R.transpose();
-    const double s = stiffness_scale * volume;
-    const std::array<int, 16>& slots = model.element_slots()[t];
-    for (int a = 0; a < 4; ++a) {
-      for (int bb = 0; bb < 4; ++bb) {
-        Eigen::Matrix3d block = (s * lambda) * c.row(a).transpose() * c.row(bb) +
-                                (s * mu) * c.row(bb).transpose() * c.row(a);
-        block.diagonal().array() += s * mu * grad.row(a).dot(grad.row(bb));
-        for (int r = 0; r < 3; ++r) {
-          double* row = values + row_start[3 * tet[a] + r] + slots[4 * a + bb];
-          row[0] += block(r, 0);
-          row[1] += block(r, 1);
-          row[2] += block(r, 2);
+  // element loop: in mesh order on one thread (memory locality); with more,
+  // one colour at a time (no two elements of a colour share a vertex, so the
+  // scatter has no races and a summation order fixed for any thread count
+  // above one)
+  const bool threaded = settings.num_threads > 1;
+  const std::vector<int>& colored = model.colored_tets();
+  const std::vector<int>& color_offsets = model.color_offsets();
+  const int num_colors = threaded ? static_cast<int>(color_offsets.size()) - 1 : 1;
+  for (int color = 0; color < num_colors; ++color) {
+    // the last colour may hold tets that share vertices: serial
+    const bool parallel = threaded && color < 63;
+    const int begin = threaded ? color_offsets[color] : 0;
+    const int end = threaded ? color_offsets[color + 1] : model.num_tets();
+#pragma omp parallel for num_threads(settings.num_threads) schedule(static) if (parallel)
+    for (int k = begin; k < end; ++k) {
+      const int t = threaded ? colored[k] : k;
+      const auto tet = mesh.tets().row(t);
+      const Eigen::Matrix<double, 4, 3>& grad = model.gradients()[t];
+      Eigen::Vector3d x[4];
+      for (int i = 0; i < 4; ++i) x[i] = x_.row(tet[i]).transpose();
+      const Eigen::Matrix3d F = DeformationGradient(grad, x);
+      const Eigen::Matrix3d R =
+          ExtractRotation(F, rotations_[t], settings.rotation_iterations, 1e-10);
+      const double volume = mesh.rest_volumes()[t];
+      // f_i = -V P b_i
+      const Eigen::Matrix3d VP = volume * CorotatedStress(F, R, mu, lambda);
+      for (int i = 0; i < 4; ++i) {
+        b_.segment<3>(3 * tet[i]).noalias() -= dt * VP * grad.row(i).transpose();
+      }
+      // K_ij = V [lambda c_i c_j^T + mu c_j c_i^T + mu (b_i . b_j) I], c_i = R b_i;
+      // K_ji = K_ij^T
+      const Eigen::Matrix<double, 4, 3> c = grad * R.transpose();
+      const double s = stiffness_scale * volume;
+      const std::array<int, 16>& slots = model.element_slots()[t];
+      for (int a = 0; a < 4; ++a) {
+        const int row_a = row_start[3 * tet[a]];
+        const int length_a = row_start[3 * tet[a] + 1] - row_a;
+        for (int bb = a; bb < 4; ++bb) {
+          Eigen::Matrix3d block = (s * lambda) * c.row(a).transpose() * c.row(bb) +
+                                  (s * mu) * c.row(bb).transpose() * c.row(a);
+          block.diagonal().array() += s * mu * grad.row(a).dot(grad.row(bb));
+          double* entry = values + row_a + slots[4 * a + bb];
+          for (int r = 0; r < 3; ++r, entry += length_a) {
+            entry[0] += block(r, 0);
+            entry[1] += block(r, 1);
+            entry[2] += block(r, 2);
+          }
+          if (bb == a) continue;
+          const int row_b = row_start[3 * tet[bb]];
+          const int length_b = row_start[3 * tet[bb] + 1] - row_b;
+          double* mirror = values + row_b + slots[4 * bb + a];
+          for (int r = 0; r < 3; ++r, mirror += length_b) {
+            mirror[0] += block(0, r);
+            mirror[1] += block(1, r);
+            mirror[2] += block(2, r);
+          }
         }
       }
     }

@@ -3,6 +3,7 @@
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 
 #include "deformable/corotational.h"
 
@@ -88,6 +89,28 @@ std::shared_ptr<const FemModel> FemModel::Build(std::shared_ptr<const TetMesh> m
       }
     }
   }
+  // greedy colouring: each tet takes the smallest colour none of its
+  // vertices' earlier tets has
+  std::vector<int> color(num_tets, 0);
+  std::vector<std::uint64_t> vertex_colors(num_vertices, 0);  // bit set of used colours
+  int num_colors = 0;
+  for (int t = 0; t < num_tets; ++t) {
+    std::uint64_t used = 0;
+    for (int i = 0; i < 4; ++i) used |= vertex_colors[m.tets()(t, i)];
+    int c = 0;
+    while (c < 63 && (used >> c & 1u)) ++c;
+    color[t] = c;  // colour 63 collects the (rare) rest; assembled serially
+    if (c < 63) {
+      for (int i = 0; i < 4; ++i) vertex_colors[m.tets()(t, i)] |= std::uint64_t{1} << c;
+    }
+    num_colors = std::max(num_colors, c + 1);
+  }
+  model->color_offsets_.assign(num_colors + 1, 0);
+  for (int t = 0; t < num_tets; ++t) ++model->color_offsets_[color[t] + 1];
+  for (int c = 0; c < num_colors; ++c) model->color_offsets_[c + 1] += model->color_offsets_[c];
+  model->colored_tets_.resize(num_tets);
+  std::vector<int> fill(model->color_offsets_.begin(), model->color_offsets_.end() - 1);
+  for (int t = 0; t < num_tets; ++t) model->colored_tets_[fill[color[t]]++] = t;
   return model;
 }
 

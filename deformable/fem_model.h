@@ -50,6 +50,11 @@ class FemModel {
   const std::vector<std::array<int, 16>>& element_slots() const { return element_slots_; }
   // Where the columns of vertex v start in its own rows.
   const std::vector<int>& diagonal_slot() const { return diagonal_slot_; }
+  // Tetrahedra grouped so that no two of a group share a vertex (greedy
+  // colouring): a group's elements can be assembled in parallel, and the
+  // order of the sums stays the same whatever the thread count.
+  const std::vector<int>& color_offsets() const { return color_offsets_; }  // #colors + 1
+  const std::vector<int>& colored_tets() const { return colored_tets_; }    // #T
 
  private:
   FemModel() = default;
@@ -67,6 +72,8 @@ class FemModel {
   std::vector<int> columns_;
   std::vector<std::array<int, 16>> element_slots_;
   std::vector<int> diagonal_slot_;
+  std::vector<int> color_offsets_;
+  std::vector<int> colored_tets_;
 };
 
 }  // namespace tetcosim
