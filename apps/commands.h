@@ -10,5 +10,6 @@ namespace tetcosim::app {
 
 void AddInfoCommand(CLI::App& app);
 void AddDepthCommand(CLI::App& app);
+void AddRunCommand(CLI::App& app);
 
 }  // namespace tetcosim::app

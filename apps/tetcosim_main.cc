@@ -17,6 +17,7 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
   tetcosim::app::AddInfoCommand(app);
   tetcosim::app::AddDepthCommand(app);
+  tetcosim::app::AddRunCommand(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -9,6 +9,25 @@
 
 namespace tetcosim {
 
+Eigen::VectorXd ComputeContactAreas(const TetMesh& m) {
+  Eigen::VectorXd areas = Eigen::VectorXd::Zero(m.num_vertices());
+  Eigen::VectorXd volume_share = Eigen::VectorXd::Zero(m.num_vertices());
+  for (int t = 0; t < m.num_tets(); ++t) {
+    for (int i = 0; i < 4; ++i) volume_share[m.tets()(t, i)] += m.rest_volumes()[t] / 4.0;
+  }
+  for (Eigen::Index f = 0; f < m.surface().rows(); ++f) {
+    Eigen::Vector3d a = m.positions().row(m.surface()(f, 0));
+    Eigen::Vector3d b = m.positions().row(m.surface()(f, 1));
+    Eigen::Vector3d c = m.positions().row(m.surface()(f, 2));
+    double area = 0.5 * (b - a).cross(c - a).norm();
+    for (int k = 0; k < 3; ++k) areas[m.surface()(f, k)] += area / 3.0;
+  }
+  for (int v = 0; v < m.num_vertices(); ++v) {
+    if (!m.is_surface_vertex(v)) areas[v] = std::pow(volume_share[v], 2.0 / 3.0);
+  }
+  return areas;
+}
+
 std::shared_ptr<const FemModel> FemModel::Build(std::shared_ptr<const TetMesh> mesh,
                                                 const Material& material, const char* where) {
   material.Validate(where);
@@ -24,7 +43,6 @@ std::shared_ptr<const FemModel> FemModel::Build(std::shared_ptr<const TetMesh> m
   // gradients, masses, volume shares
   model->gradients_.resize(num_tets);
   model->masses_.setZero(num_vertices);
-  Eigen::VectorXd volume_share = Eigen::VectorXd::Zero(num_vertices);
   for (int t = 0; t < num_tets; ++t) {
     Eigen::Vector3d X[4];
     for (int i = 0; i < 4; ++i) X[i] = m.positions().row(m.tets()(t, i)).transpose();
@@ -32,24 +50,12 @@ std::shared_ptr<const FemModel> FemModel::Build(std::shared_ptr<const TetMesh> m
     double volume = m.rest_volumes()[t];
     for (int i = 0; i < 4; ++i) {
       model->masses_[m.tets()(t, i)] += material.density * volume / 4.0;
-      volume_share[m.tets()(t, i)] += volume / 4.0;
     }
   }
   model->total_mass_ = model->masses_.sum();
   model->characteristic_length_ = std::cbrt(m.total_volume());
 
-  // contact areas
-  model->contact_areas_.setZero(num_vertices);
-  for (Eigen::Index f = 0; f < m.surface().rows(); ++f) {
-    Eigen::Vector3d a = m.positions().row(m.surface()(f, 0));
-    Eigen::Vector3d b = m.positions().row(m.surface()(f, 1));
-    Eigen::Vector3d c = m.positions().row(m.surface()(f, 2));
-    double area = 0.5 * (b - a).cross(c - a).norm();
-    for (int k = 0; k < 3; ++k) model->contact_areas_[m.surface()(f, k)] += area / 3.0;
-  }
-  for (int v = 0; v < num_vertices; ++v) {
-    if (!m.is_surface_vertex(v)) model->contact_areas_[v] = std::pow(volume_share[v], 2.0 / 3.0);
-  }
+  model->contact_areas_ = ComputeContactAreas(m);
 
   // sparsity: vertex v couples with itself and its edge neighbours
   const auto& offsets = m.adjacency_offsets();

@@ -14,6 +14,11 @@
 
 namespace tetcosim {
 
+// The area each vertex stands for in contact (#V, m^2): a third of the
+// incident surface triangles' area for surface vertices, (volume share)^(2/3)
+// for interior ones.
+Eigen::VectorXd ComputeContactAreas(const TetMesh& mesh);
+
 class FemModel {
  public:
   // Throws Error if the material is invalid (`where` names the body).

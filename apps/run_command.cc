@@ -1,0 +1,227 @@
+// tetcosim run SCENE.xml: a headless rollout that writes summary.json,
+// steps.csv, bodies.csv and (with --vtk) vtk/*.vtu with a series.pvd. Ctrl-C
+// stops cleanly with everything written so far valid; a non-finite state
+// stops the run with status "diverged".
+
+#include <unistd.h>
+
+#include <atomic>
+#include <chrono>
+#include <csignal>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+
+#include "apps/commands.h"
+#include "mesh/error.h"
+#include "mesh/mesh_io.h"
+#include "mujoco_bridge/world.h"
+
+namespace tetcosim::app {
+namespace {
+
+std::atomic<bool> interrupted{false};
+void OnInterrupt(int) {
+  interrupted = true;
+}
+
+struct RunOptions {
+  std::string scene;
+  double duration = 0.0;
+  long steps = 0;
+  std::string method;
+  std::string out = "out";
+  double fps = 30.0;
+  bool vtk = false;
+  int threads = 1;
+  double timestep = 0.0;
+};
+
+void WriteVtkFrame(const World& world, const std::filesystem::path& directory, int frame,
+                   std::vector<std::pair<double, std::string>>& series) {
+  for (int i = 0; i < world.num_deformables(); ++i) {
+    const DeformableBody& body = world.deformable(i);
+    std::string name = body.name() + "_" + std::to_string(frame) + ".vtu";
+    VtkData data;
+    const Positions& v = body.velocities();
+    data.point_data.push_back({"velocity", 3, std::vector<double>(v.data(), v.data() + v.size())});
+    WriteVtk((directory / name).string(), body.positions(), body.mesh().tets(), data);
+    series.emplace_back(world.time(), name);
+  }
+  // the .pvd index, rewritten every frame so that it is always complete
+  std::string pvd =
+      "<?xml version=\"1.0\"?>\n<VTKFile type=\"Collection\" version=\"0.1\">\n<Collection>\n";
+  for (size_t k = 0; k < series.size(); ++k) {
+    int part = static_cast<int>(k % static_cast<size_t>(std::max(1, world.num_deformables())));
+    pvd += "<DataSet timestep=\"" + std::to_string(series[k].first) + "\" part=\"" +
+           std::to_string(part) + "\" file=\"" + series[k].second + "\"/>\n";
+  }
+  pvd += "</Collection>\n</VTKFile>\n";
+  WriteFileAtomically((directory / "series.pvd").string(), pvd);
+}
+
+void RunRollout(const RunOptions& options) {
+  WorldOptions world_options;
+  if (options.method == "consistent") world_options.method = DepthMethod::kConsistent;
+  if (options.method == "closest") world_options.method = DepthMethod::kClosest;
+  world_options.threads = options.threads;
+  if (options.timestep > 0.0) world_options.timestep = options.timestep;
+  std::unique_ptr<World> world = World::Load(options.scene, world_options);
+  const double dt = world->timestep();
+  const long steps = options.steps > 0 ? options.steps
+                     : options.duration > 0.0
+                         ? static_cast<long>(std::llround(options.duration / dt))
+                         : static_cast<long>(std::llround(1.0 / dt));
+  std::filesystem::path out(options.out);
+  std::error_code error;
+  std::filesystem::create_directories(out, error);
+  if (error) throw Error(options.out + ": cannot create the output folder: " + error.message());
+  if (options.vtk) std::filesystem::create_directories(out / "vtk");
+
+  std::ofstream steps_csv(out / "steps.csv");
+  std::ofstream bodies_csv(out / "bodies.csv");
+  if (!steps_csv || !bodies_csv) throw Error(options.out + ": cannot write the output files");
+  steps_csv << "step,time,colliding_points,max_depth,mean_depth,kinetic_deformable,kinetic_rigid,"
+               "px,py,pz,wall_ms\n";
+  bodies_csv << "frame,time,body,x,y,z,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz\n";
+  const long frame_every = std::max(1L, static_cast<long>(std::llround(1.0 / (options.fps * dt))));
+  std::vector<std::pair<double, std::string>> series;
+
+  std::signal(SIGINT, OnInterrupt);
+  const bool terminal = isatty(fileno(stderr));
+  std::string status = "ok";
+  std::string message;
+  double sum_ms[4] = {0, 0, 0, 0};  // collision, deformable, mujoco, total
+  long sum_points = 0;
+  int max_points = 0;
+  double max_depth = 0.0;
+  long done = 0;
+  int frame = 0;
+  auto start = std::chrono::steady_clock::now();
+  for (long step = 0; step < steps; ++step) {
+    if (interrupted) {
+      status = "interrupted";
+      break;
+    }
+    world->Step();
+    const StepMetrics& metrics = world->metrics();
+    if (metrics.status != StepStatus::kOk) {
+      status = "diverged";
+      message = metrics.message;
+      break;
+    }
+    ++done;
+    sum_ms[0] += metrics.collision_ms;
+    sum_ms[1] += metrics.deformable_ms;
+    sum_ms[2] += metrics.mujoco_ms;
+    sum_ms[3] += metrics.total_ms;
+    sum_points += metrics.colliding_points;
+    max_points = std::max(max_points, metrics.colliding_points);
+    max_depth = std::max(max_depth, metrics.max_depth);
+    Eigen::Vector3d p = world->LinearMomentum();
+    char line[512];
+    std::snprintf(line, sizeof(line), "%ld,%.9g,%d,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.6g\n",
+                  step + 1, world->time(), metrics.colliding_points, metrics.max_depth,
+                  metrics.mean_depth, world->DeformableKineticEnergy(), world->RigidKineticEnergy(),
+                  p.x(), p.y(), p.z(), metrics.total_ms);
+    steps_csv << line;
+    if (step % frame_every == 0) {
+      for (int b = 1; b < world->num_rigid_bodies(); ++b) {
+        Eigen::Vector3d x = world->RigidBodyPosition(b);
+        Eigen::Quaterniond q = world->RigidBodyOrientation(b);
+        Eigen::Vector3d v = world->RigidBodyLinearVelocity(b);
+        Eigen::Vector3d w = world->RigidBodyAngularVelocity(b);
+        std::snprintf(
+            line, sizeof(line),
+            "%d,%.9g,%s,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g\n", frame,
+            world->time(), world->RigidBodyName(b).c_str(), x.x(), x.y(), x.z(), q.w(), q.x(),
+            q.y(), q.z(), v.x(), v.y(), v.z(), w.x(), w.y(), w.z());
+        bodies_csv << line;
+      }
+      if (options.vtk) WriteVtkFrame(*world, out / "vtk", frame, series);
+      ++frame;
+      steps_csv.flush();
+      bodies_csv.flush();
+    }
+    if (terminal && (step % 50 == 0 || step + 1 == steps)) {
+      std::fprintf(stderr, "\r[%3d%%] step %ld / %ld, t = %.3f s",
+                   static_cast<int>(100 * (step + 1) / steps), step + 1, steps, world->time());
+    }
+  }
+  if (terminal) std::fprintf(stderr, "\n");
+  steps_csv.close();
+  bodies_csv.close();
+  const double wall =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+
+  nlohmann::ordered_json summary;
+  summary["status"] = status;
+  if (!message.empty()) summary["message"] = message;
+  summary["scene"] = options.scene;
+  long vertices = 0, tets = 0;
+  for (int i = 0; i < world->num_deformables(); ++i) {
+    vertices += world->deformable(i).num_vertices();
+    tets += world->deformable(i).mesh().num_tets();
+  }
+  summary["counts"] = {{"deformables", world->num_deformables()},
+                       {"vertices", vertices},
+                       {"tetrahedra", tets},
+                       {"rigid_bodies", world->num_rigid_bodies() - 1},
+                       {"proxies", world->num_proxies()}};
+  summary["steps"] = done;
+  summary["sim_time"] = world->time();
+  summary["wall_time"] = wall;
+  summary["dt"] = dt;
+  summary["steps_per_second"] = wall > 0.0 ? static_cast<double>(done) / wall : 0.0;
+  const double n = std::max<double>(1.0, static_cast<double>(done));
+  summary["ms_per_step"] = {{"collision", sum_ms[0] / n},
+                            {"deformable", sum_ms[1] / n},
+                            {"mujoco", sum_ms[2] / n},
+                            {"total", sum_ms[3] / n}};
+  summary["contacts"] = {{"max_colliding_points", max_points},
+                         {"mean_colliding_points", static_cast<double>(sum_points) / n},
+                         {"us_per_colliding_point",
+                          sum_points > 0 ? sum_ms[0] * 1e3 / static_cast<double>(sum_points) : 0.0},
+                         {"max_depth", max_depth},
+                         {"final_max_depth", world->metrics().max_depth}};
+  summary["final_kinetic_energy"] = {{"deformable", world->DeformableKineticEnergy()},
+                                     {"rigid", world->RigidKineticEnergy()}};
+  WriteFileAtomically((out / "summary.json").string(), summary.dump(2) + "\n");
+  std::printf("%s: %ld steps, %.3f s simulated in %.2f s wall (%.0f steps/s): %s\n",
+              options.scene.c_str(), done, world->time(), wall,
+              static_cast<double>(done) / std::max(wall, 1e-9), status.c_str());
+  std::printf("  ms per step: collision %.3f, deformable %.3f, mujoco %.3f, total %.3f\n",
+              sum_ms[0] / n, sum_ms[1] / n, sum_ms[2] / n, sum_ms[3] / n);
+  std::printf("  wrote %s/summary.json, steps.csv, bodies.csv%s\n", options.out.c_str(),
+              options.vtk ? ", vtk/" : "");
+  if (status == "diverged") throw Error(message);
+  if (status == "interrupted") throw Error("interrupted; the outputs written so far are complete");
+}
+
+}  // namespace
+
+void AddRunCommand(CLI::App& app) {
+  auto options = std::make_shared<RunOptions>();
+  CLI::App* run = app.add_subcommand("run", "Run a scene headless and write its data");
+  run->add_option("scene", options->scene, "Scene file (MJCF with a <deformable> element)")
+      ->required();
+  auto* duration = run->add_option("--duration", options->duration, "Simulated seconds (default 1)")
+                       ->check(CLI::PositiveNumber);
+  run->add_option("--steps", options->steps, "Number of steps")
+      ->check(CLI::PositiveNumber)
+      ->excludes(duration);
+  run->add_option("--method", options->method, "consistent or closest (default: the scene's)")
+      ->check(CLI::IsMember({"consistent", "closest"}));
+  run->add_option("--out", options->out, "Output folder (default out)");
+  run->add_option("--fps", options->fps, "Frames per second for bodies.csv and VTK (default 30)")
+      ->check(CLI::PositiveNumber);
+  run->add_flag("--vtk", options->vtk,
+                "Write the deformable meshes per frame (vtk/*.vtu, series.pvd)");
+  run->add_option("--threads", options->threads, "Threads (default 1)")->check(CLI::Range(1, 256));
+  run->add_option("--timestep", options->timestep, "Override the scene's timestep (s)")
+      ->check(CLI::PositiveNumber);
+  run->callback([options] { RunRollout(*options); });
+}
+
+}  // namespace tetcosim::app

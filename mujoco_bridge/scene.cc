@@ -1,0 +1,309 @@
+#include "mujoco_bridge/scene.h"
+
+#include <tinyxml2.h>
+
+#include <charconv>
+#include <cmath>
+#include <filesystem>
+#include <numbers>
+#include <set>
+#include <sstream>
+
+#include "mesh/error.h"
+
+namespace tetcosim {
+namespace {
+
+using tinyxml2::XMLElement;
+
+class SceneParser {
+ public:
+  explicit SceneParser(std::string path) : path_(std::move(path)) {}
+
+  [[noreturn]] void Fail(const XMLElement* element, const std::string& message) const {
+    ThrowAt(path_, element ? element->GetLineNum() : 0,
+            (element ? "<" + std::string(element->Name()) + ">: " : std::string()) + message);
+  }
+
+  void CheckAttributes(const XMLElement* element,
+                       std::initializer_list<const char*> allowed) const {
+    for (const tinyxml2::XMLAttribute* a = element->FirstAttribute(); a; a = a->Next()) {
+      bool known = false;
+      for (const char* name : allowed) known |= std::string(a->Name()) == name;
+      if (!known) {
+        std::string list;
+        for (const char* name : allowed) list += std::string(list.empty() ? "" : ", ") + name;
+        Fail(element, "unknown attribute '" + std::string(a->Name()) + "'; allowed: " + list);
+      }
+    }
+  }
+
+  std::vector<double> Numbers(const XMLElement* element, const char* name, size_t min_count,
+                              size_t max_count) const {
+    const char* text = element->Attribute(name);
+    std::vector<double> values;
+    if (!text) return values;
+    std::istringstream in(text);
+    std::string token;
+    while (in >> token) {
+      double value = 0.0;
+      auto [end, ec] = std::from_chars(token.data(), token.data() + token.size(), value);
+      if (ec != std::errc() || end != token.data() + token.size() || !std::isfinite(value)) {
+        Fail(element, std::string(name) + "=\"" + text + "\" is not a list of finite numbers");
+      }
+      values.push_back(value);
+    }
+    if (values.size() < min_count || values.size() > max_count) {
+      Fail(element, std::string(name) + " takes " + std::to_string(min_count) +
+                        (max_count != min_count ? " to " + std::to_string(max_count) : "") +
+                        " numbers, got " + std::to_string(values.size()));
+    }
+    return values;
+  }
+
+  std::optional<double> Number(const XMLElement* element, const char* name, double min,
+                               double max) const {
+    if (!element->Attribute(name)) return std::nullopt;
+    double value = Numbers(element, name, 1, 1)[0];
+    if (value < min || value > max) {
+      std::ostringstream range;
+      range << name << " = " << value << " is outside [" << min << ", " << max << "]";
+      Fail(element, range.str());
+    }
+    return value;
+  }
+
+  bool Bool(const XMLElement* element, const char* name, bool fallback) const {
+    const char* text = element->Attribute(name);
+    if (!text) return fallback;
+    std::string value(text);
+    if (value == "true") return true;
+    if (value == "false") return false;
+    Fail(element, std::string(name) + " must be true or false");
+  }
+
+  std::string File(const XMLElement* element, const char* name) const {
+    const char* text = element->Attribute(name);
+    if (!text) return {};
+    std::filesystem::path file(text);
+    if (file.is_relative()) file = std::filesystem::path(path_).parent_path() / file;
+    if (!std::filesystem::exists(file)) {
+      Fail(element,
+           std::string(name) + " '" + text + "' does not exist (looked for " + file.string() + ")");
+    }
+    return file.string();
+  }
+
+  // pos, quat or euler (MJCF conventions: quat w x y z; euler x-y-z intrinsic
+  // in the compiler's angle unit)
+  Eigen::Isometry3d Pose(const XMLElement* element) const {
+    Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+    std::vector<double> pos = Numbers(element, "pos", 3, 3);
+    if (!pos.empty()) X.translation() = Eigen::Vector3d(pos[0], pos[1], pos[2]);
+    std::vector<double> quat = Numbers(element, "quat", 4, 4);
+    std::vector<double> euler = Numbers(element, "euler", 3, 3);
+    if (!quat.empty() && !euler.empty()) Fail(element, "give quat or euler, not both");
+    if (!quat.empty()) {
+      Eigen::Quaterniond q(quat[0], quat[1], quat[2], quat[3]);
+      if (q.norm() < 1e-12) Fail(element, "quat has zero length");
+      X.linear() = q.normalized().toRotationMatrix();
+    }
+    if (!euler.empty()) {
+      double unit = degrees_ ? std::numbers::pi / 180.0 : 1.0;
+      X.linear() = (Eigen::AngleAxisd(euler[0] * unit, Eigen::Vector3d::UnitX()) *
+                    Eigen::AngleAxisd(euler[1] * unit, Eigen::Vector3d::UnitY()) *
+                    Eigen::AngleAxisd(euler[2] * unit, Eigen::Vector3d::UnitZ()))
+                       .toRotationMatrix();
+    }
+    return X;
+  }
+
+  void ContactAttributes(const XMLElement* element, ContactParams& params) const {
+    params.stiffness = Number(element, "stiffness", 0.0, 1e15);
+    params.damping = Number(element, "damping", 0.0, 100.0);
+    params.friction = Number(element, "friction", 0.0, 100.0);
+  }
+
+  SceneSpec Parse() {
+    SceneSpec scene;
+    scene.path = path_;
+    tinyxml2::XMLDocument document;
+    if (!std::filesystem::exists(path_)) ThrowAt(path_, 0, "cannot open: no such file");
+    if (document.LoadFile(path_.c_str()) != tinyxml2::XML_SUCCESS) {
+      ThrowAt(path_, document.ErrorLineNum(),
+              std::string("not well-formed XML: ") + document.ErrorStr());
+    }
+    XMLElement* root = document.RootElement();
+    if (!root || std::string(root->Name()) != "mujoco") {
+      ThrowAt(path_, root ? root->GetLineNum() : 0, "the top-level element must be <mujoco>");
+    }
+    if (const XMLElement* compiler = root->FirstChildElement("compiler")) {
+      const char* angle = compiler->Attribute("angle");
+      degrees_ = !(angle && std::string(angle) == "radian");
+    }
+    XMLElement* deformable = root->FirstChildElement("deformable");
+    if (deformable && deformable->NextSiblingElement("deformable")) {
+      Fail(deformable->NextSiblingElement("deformable"),
+           "only one <deformable> element is allowed");
+    }
+    if (deformable) {
+      CheckAttributes(deformable, {});
+      std::set<std::string> names;
+      for (const XMLElement* child = deformable->FirstChildElement(); child;
+           child = child->NextSiblingElement()) {
+        std::string kind = child->Name();
+        if (kind == "tetbody") {
+          scene.tetbodies.push_back(TetBody(child));
+          if (!names.insert(scene.tetbodies.back().name).second) {
+            Fail(child, "a tetbody named '" + scene.tetbodies.back().name + "' exists already");
+          }
+        } else if (kind == "rigidtet") {
+          scene.rigidtets.push_back(RigidTet(child));
+        } else if (kind == "attach") {
+          scene.attachments.push_back(Attach(child));
+        } else if (kind == "contact") {
+          CheckAttributes(child, {"method", "stiffness", "damping", "friction"});
+          if (const char* method = child->Attribute("method")) {
+            std::string m(method);
+            if (m == "consistent")
+              scene.method = DepthMethod::kConsistent;
+            else if (m == "closest")
+              scene.method = DepthMethod::kClosest;
+            else
+              Fail(child, "method must be consistent or closest");
+          }
+          ContactAttributes(child, scene.contact);
+        } else if (kind == "solver") {
+          CheckAttributes(child, {"substeps", "linear", "tolerance", "maxiter"});
+          scene.solver.substeps = static_cast<int>(Number(child, "substeps", 1, 1000).value_or(1));
+          if (const char* linear = child->Attribute("linear")) {
+            std::string l(linear);
+            if (l == "cg")
+              scene.solver.linear_solver = LinearSolver::kConjugateGradient;
+            else if (l == "ldlt")
+              scene.solver.linear_solver = LinearSolver::kCholesky;
+            else
+              Fail(child, "linear must be cg or ldlt");
+          }
+          scene.solver.tolerance = Number(child, "tolerance", 1e-14, 1e-1).value_or(1e-6);
+          scene.solver.max_iterations =
+              static_cast<int>(Number(child, "maxiter", 1, 1e6).value_or(1000));
+        } else {
+          Fail(child,
+               "unknown element inside <deformable>; use tetbody, rigidtet, attach, contact or "
+               "solver");
+        }
+      }
+      for (const AttachSpec& attach : scene.attachments) {
+        if (!names.count(attach.tetbody)) {
+          ThrowAt(path_, attach.line, "<attach>: no tetbody named '" + attach.tetbody + "'");
+        }
+      }
+      root->DeleteChild(deformable);
+    }
+    tinyxml2::XMLPrinter printer;
+    document.Print(&printer);
+    scene.mjcf = printer.CStr();
+    return scene;
+  }
+
+  TetBodySpec TetBody(const XMLElement* e) const {
+    CheckAttributes(
+        e, {"name", "file",  "shape",       "size",      "resolution", "split",         "pos",
+            "quat", "euler", "scale",       "density",   "young",      "poisson",       "damping",
+            "vel",  "rgba",  "selfcollide", "stiffness", "friction",   "contactdamping"});
+    TetBodySpec spec;
+    spec.line = e->GetLineNum();
+    const char* name = e->Attribute("name");
+    if (!name || !*name) Fail(e, "name is required");
+    spec.name = name;
+    spec.file = File(e, "file");
+    if (const char* shape = e->Attribute("shape")) spec.shape = shape;
+    if (spec.file.empty() == spec.shape.empty())
+      Fail(e, "give either file or shape (box, sphere, cylinder, capsule, torus)");
+    for (double s : Numbers(e, "size", 0, 3)) spec.size.push_back(s);
+    for (double r : Numbers(e, "resolution", 0, 3)) spec.resolution.push_back(static_cast<int>(r));
+    spec.split = static_cast<int>(Number(e, "split", 5, 6).value_or(6));
+    if (!spec.shape.empty() && spec.size.empty())
+      Fail(e, "shape needs size (half-extents or radii, metres)");
+    spec.pose = Pose(e);
+    spec.scale = Number(e, "scale", 1e-9, 1e9).value_or(1.0);
+    spec.material.density = Number(e, "density", 1e-9, 1e9).value_or(1000.0);
+    spec.material.young = Number(e, "young", 1e-9, 1e15).value_or(1e5);
+    spec.material.poisson = Number(e, "poisson", 0.0, 0.4999).value_or(0.3);
+    std::vector<double> damping = Numbers(e, "damping", 0, 2);
+    if (!damping.empty()) spec.material.damping_mass = damping[0];
+    if (damping.size() > 1) spec.material.damping_stiffness = damping[1];
+    std::vector<double> vel = Numbers(e, "vel", 3, 3);
+    if (!vel.empty()) spec.velocity = Eigen::Vector3d(vel[0], vel[1], vel[2]);
+    std::vector<double> rgba = Numbers(e, "rgba", 4, 4);
+    if (!rgba.empty()) spec.rgba = Eigen::Vector4d(rgba[0], rgba[1], rgba[2], rgba[3]);
+    spec.self_collide = Bool(e, "selfcollide", false);
+    spec.contact.stiffness = Number(e, "stiffness", 0.0, 1e15);
+    spec.contact.damping = Number(e, "contactdamping", 0.0, 100.0);
+    spec.contact.friction = Number(e, "friction", 0.0, 100.0);
+    try {
+      spec.material.Validate(("tetbody '" + spec.name + "'").c_str());
+    } catch (const Error& error) {
+      Fail(e, error.what());
+    }
+    return spec;
+  }
+
+  RigidTetSpec RigidTet(const XMLElement* e) const {
+    CheckAttributes(e, {"body", "geom", "file", "pos", "quat", "euler", "scale", "resolution"});
+    RigidTetSpec spec;
+    spec.line = e->GetLineNum();
+    const char* body = e->Attribute("body");
+    if (!body) Fail(e, "body (a MuJoCo body name) is required");
+    spec.body = body;
+    if (const char* geom = e->Attribute("geom")) spec.geom = geom;
+    spec.file = File(e, "file");
+    if (spec.geom.empty() == spec.file.empty()) Fail(e, "give either geom or file");
+    spec.pose = Pose(e);
+    spec.scale = Number(e, "scale", 1e-9, 1e9).value_or(1.0);
+    spec.resolution = static_cast<int>(Number(e, "resolution", 0, 64).value_or(3));
+    return spec;
+  }
+
+  AttachSpec Attach(const XMLElement* e) const {
+    CheckAttributes(e, {"tetbody", "body", "vertices", "box", "sphere"});
+    AttachSpec spec;
+    spec.line = e->GetLineNum();
+    const char* tetbody = e->Attribute("tetbody");
+    const char* body = e->Attribute("body");
+    if (!tetbody || !body) Fail(e, "tetbody and body are required");
+    spec.tetbody = tetbody;
+    spec.body = body;
+    for (double v : Numbers(e, "vertices", 0, 1000000)) {
+      if (v < 0 || v != std::floor(v)) Fail(e, "vertices must be non-negative integers");
+      spec.vertices.push_back(static_cast<int>(v));
+    }
+    std::vector<double> box = Numbers(e, "box", 0, 6);
+    if (!box.empty()) {
+      if (box.size() != 6) Fail(e, "box takes xmin ymin zmin xmax ymax zmax");
+      spec.box = std::make_pair(Eigen::Vector3d(box[0], box[1], box[2]),
+                                Eigen::Vector3d(box[3], box[4], box[5]));
+    }
+    std::vector<double> sphere = Numbers(e, "sphere", 0, 4);
+    if (!sphere.empty()) {
+      if (sphere.size() != 4) Fail(e, "sphere takes x y z radius");
+      spec.sphere = std::make_pair(Eigen::Vector3d(sphere[0], sphere[1], sphere[2]), sphere[3]);
+    }
+    if (spec.vertices.empty() && !spec.box && !spec.sphere)
+      Fail(e, "choose vertices, box or sphere");
+    return spec;
+  }
+
+ private:
+  std::string path_;
+  bool degrees_ = true;
+};
+
+}  // namespace
+
+SceneSpec ParseScene(const std::string& path) {
+  return SceneParser(path).Parse();
+}
+
+}  // namespace tetcosim

@@ -1,0 +1,84 @@
+#pragma once
+
+// A tetcosim scene: an MJCF file whose top-level <deformable> element
+// describes the soft bodies and their coupling (docs/scene-format.md). This
+// file parses that element; everything else goes to MuJoCo unchanged.
+
+#include <Eigen/Geometry>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "collision/penetration.h"
+#include "deformable/deformable_body.h"
+#include "deformable/material.h"
+
+namespace tetcosim {
+
+// Contact parameters; unset values inherit (body from scene, scene from the
+// documented defaults).
+struct ContactParams {
+  std::optional<double> stiffness;  // Pa/m (force per contact area per depth); default 10 E / L
+  std::optional<double> damping;    // fraction of critical damping; default 0.5
+  std::optional<double> friction;   // Coulomb coefficient; default 0.5
+};
+
+struct TetBodySpec {
+  std::string name;
+  long line = 0;
+  std::string file;   // mesh file (absolute), or empty with `shape`
+  std::string shape;  // box, sphere, cylinder, capsule, torus
+  std::vector<double> size;
+  std::vector<int> resolution;
+  int split = 6;
+  Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();  // X_WB
+  double scale = 1.0;
+  Material material;
+  Eigen::Vector3d velocity = Eigen::Vector3d::Zero();
+  Eigen::Vector4d rgba = Eigen::Vector4d(0.8, 0.4, 0.3, 1.0);
+  bool self_collide = false;
+  ContactParams contact;
+};
+
+struct RigidTetSpec {
+  long line = 0;
+  std::string body;  // MuJoCo body name
+  std::string geom;  // one of its primitive geoms, or empty with `file`
+  std::string file;
+  Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();  // X_BM: mesh in the body frame
+  double scale = 1.0;
+  int resolution = 3;
+};
+
+struct AttachSpec {
+  long line = 0;
+  std::string tetbody;  // the deformable
+  std::string body;     // the MuJoCo body it is glued to
+  std::vector<int> vertices;
+  std::optional<std::pair<Eigen::Vector3d, Eigen::Vector3d>> box;  // world-frame min, max at load
+  std::optional<std::pair<Eigen::Vector3d, double>> sphere;        // world-frame centre, radius
+};
+
+struct SolverSpec {
+  int substeps = 1;
+  LinearSolver linear_solver = LinearSolver::kConjugateGradient;
+  double tolerance = 1e-6;
+  int max_iterations = 1000;
+};
+
+struct SceneSpec {
+  std::string path;  // the scene file
+  std::string mjcf;  // the MJCF without <deformable>
+  DepthMethod method = DepthMethod::kConsistent;
+  ContactParams contact;
+  SolverSpec solver;
+  std::vector<TetBodySpec> tetbodies;
+  std::vector<RigidTetSpec> rigidtets;
+  std::vector<AttachSpec> attachments;
+};
+
+// Reads and validates the scene. Throws Error with file and line for
+// unknown elements or attributes, bad values and missing files.
+SceneSpec ParseScene(const std::string& path);
+
+}  // namespace tetcosim

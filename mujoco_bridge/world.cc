@@ -1,0 +1,611 @@
+#include "mujoco_bridge/world.h"
+
+#include <mujoco/mujoco.h>
+
+#include <chrono>
+#include <cstring>
+#include <filesystem>
+#include <sstream>
+
+#include "mesh/error.h"
+#include "mesh/generators.h"
+#include "mesh/mesh_io.h"
+
+namespace tetcosim {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double MillisecondsSince(Clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+}
+
+// X_WB of a MuJoCo body from xpos / xmat
+Eigen::Isometry3d BodyPose(const mjModel* m, const mjData* d, int body) {
+  (void)m;
+  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  X.translation() = Eigen::Map<const Eigen::Vector3d>(d->xpos + 3 * body);
+  X.linear() = Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(d->xmat + 9 * body);
+  return X;
+}
+
+// signed distance of p (geom frame) to a primitive geom, and the unit
+// outward direction there; false for geom types without one
+bool GeomDistance(int type, const double* size, const Eigen::Vector3d& p, double& distance,
+                  Eigen::Vector3d& normal) {
+  switch (type) {
+    case mjGEOM_PLANE:
+      distance = p.z();
+      normal = Eigen::Vector3d::UnitZ();
+      return true;
+    case mjGEOM_SPHERE: {
+      double r = p.norm();
+      distance = r - size[0];
+      normal = r > 0.0 ? Eigen::Vector3d(p / r) : Eigen::Vector3d::UnitZ();
+      return true;
+    }
+    case mjGEOM_CAPSULE: {
+      Eigen::Vector3d axis_point(0.0, 0.0, std::clamp(p.z(), -size[1], size[1]));
+      Eigen::Vector3d offset = p - axis_point;
+      double r = offset.norm();
+      distance = r - size[0];
+      normal = r > 0.0 ? Eigen::Vector3d(offset / r) : Eigen::Vector3d::UnitX();
+      return true;
+    }
+    case mjGEOM_BOX: {
+      Eigen::Vector3d q = p.cwiseAbs() - Eigen::Vector3d(size[0], size[1], size[2]);
+      if ((q.array() > 0.0).any()) {
+        Eigen::Vector3d outside = q.cwiseMax(0.0);
+        distance = outside.norm();
+        normal = (outside.array() * p.array().sign()).matrix() / distance;
+      } else {
+        int axis;
+        distance = q.maxCoeff(&axis);
+        normal = Eigen::Vector3d::Unit(axis) * (p[axis] >= 0.0 ? 1.0 : -1.0);
+      }
+      return true;
+    }
+    case mjGEOM_CYLINDER: {
+      double radial = std::hypot(p.x(), p.y());
+      Eigen::Vector3d radial_dir = radial > 0.0
+                                       ? Eigen::Vector3d(p.x() / radial, p.y() / radial, 0.0)
+                                       : Eigen::Vector3d::UnitX();
+      Eigen::Vector2d q(radial - size[0], std::abs(p.z()) - size[1]);
+      Eigen::Vector3d axial_dir(0.0, 0.0, p.z() >= 0.0 ? 1.0 : -1.0);
+      if (q.x() > 0.0 || q.y() > 0.0) {
+        Eigen::Vector2d outside = q.cwiseMax(0.0);
+        distance = outside.norm();
+        normal = (outside.x() * radial_dir + outside.y() * axial_dir) / distance;
+      } else if (q.x() > q.y()) {
+        distance = q.x();
+        normal = radial_dir;
+      } else {
+        distance = q.y();
+        normal = axial_dir;
+      }
+      return true;
+    }
+    default:
+      return false;
+  }
+}
+
+// a tetrahedral mesh of a primitive geom, in the geom's own frame
+RawMesh GeomMesh(const mjModel* m, int geom, int resolution, long line, const std::string& path) {
+  const double* size = m->geom_size + 3 * geom;
+  const int n = std::max(1, resolution);
+  switch (m->geom_type[geom]) {
+    case mjGEOM_BOX:
+      return MakeBox({size[0], size[1], size[2]}, Eigen::Vector3i::Constant(n), 6);
+    case mjGEOM_SPHERE:
+      return MakeSphere(size[0], std::min(resolution, 4));
+    case mjGEOM_ELLIPSOID: {
+      RawMesh raw = MakeSphere(1.0, std::min(resolution, 4));
+      for (Eigen::Index v = 0; v < raw.positions.rows(); ++v) {
+        for (int k = 0; k < 3; ++k) raw.positions(v, k) *= size[k];
+      }
+      return raw;
+    }
+    case mjGEOM_CAPSULE:
+      return MakeCapsule(size[0], size[1], n);
+    case mjGEOM_CYLINDER:
+      return MakeCylinder(size[0], size[1], n);
+    default:
+      ThrowAt(path, line,
+              "<rigidtet>: geom type " + std::to_string(m->geom_type[geom]) +
+                  " has no tetrahedral proxy; use box, sphere, ellipsoid, capsule or "
+                  "cylinder, or give a mesh file");
+  }
+}
+
+}  // namespace
+
+struct World::Proxy {
+  int body = -1;
+  std::shared_ptr<const TetMesh> mesh;  // in the body frame
+  Positions positions;                  // world frame, current
+  Eigen::VectorXd areas;
+  double friction = 0.5;
+};
+
+World::~World() {
+  if (data_) mj_deleteData(data_);
+  if (model_) mj_deleteModel(model_);
+}
+
+std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOptions& options) {
+  std::unique_ptr<World> world(new World());
+  world->options_ = options;
+  world->scene_ = ParseScene(scene_path);
+  const SceneSpec& scene = world->scene_;
+
+  // the MJCF without <deformable>, handed to MuJoCo from memory under a name
+  // in the scene's own folder, so that relative includes and assets resolve
+  // (MuJoCo 2.2.2 matches VFS names by basename: pick one nothing else uses)
+  std::filesystem::path directory = std::filesystem::absolute(scene_path).parent_path();
+  const std::string vfs_name = "tetcosim-scene-" + std::to_string(::getpid()) + "-" +
+                               std::to_string(reinterpret_cast<std::uintptr_t>(world.get())) +
+                               ".xml";
+  auto vfs = std::make_unique<mjVFS>();  // about 2 MB: on the heap
+  mj_defaultVFS(vfs.get());
+  if (mj_makeEmptyFileVFS(vfs.get(), vfs_name.c_str(), static_cast<int>(scene.mjcf.size())) != 0) {
+    ThrowAt(scene_path, 0, "could not create the in-memory scene file");
+  }
+  std::memcpy(vfs->filedata[vfs->nfile - 1], scene.mjcf.data(), scene.mjcf.size());
+  char error[1000] = "";
+  const std::string load_name = (directory / vfs_name).string();
+  world->model_ = mj_loadXML(load_name.c_str(), vfs.get(), error, sizeof(error));
+  mj_deleteVFS(vfs.get());
+  if (!world->model_) {
+    std::string message = error;
+    // MuJoCo names our in-memory file; the user knows the scene's
+    size_t at = message.find(vfs_name);
+    if (at != std::string::npos)
+      message.replace(at, vfs_name.size(), std::filesystem::path(scene_path).filename().string());
+    ThrowAt(scene_path, 0, "MuJoCo rejected the scene: " + message);
+  }
+  mjModel* m = world->model_;
+  if (options.timestep) m->opt.timestep = *options.timestep;
+  world->data_ = mj_makeData(m);
+  mjData* d = world->data_;
+  mj_forward(m, d);
+
+  // deformables
+  const double dt = m->opt.timestep;
+  const ContactParams& scene_contact = scene.contact;
+  for (const TetBodySpec& spec : scene.tetbodies) {
+    RawMesh raw;
+    try {
+      raw = spec.file.empty() ? MakeShape(spec.shape, spec.size, spec.resolution, spec.split,
+                                          "tetbody '" + spec.name + "'")
+                              : ReadRawMesh(spec.file);
+    } catch (const Error& e) {
+      ThrowAt(scene_path, spec.line,
+              std::string("<tetbody name=\"") + spec.name + "\">: " + e.what());
+    }
+    raw.positions *= spec.scale;
+    auto mesh = std::make_shared<TetMesh>(TetMesh::Build(std::move(raw)));
+    auto model = FemModel::Build(mesh, spec.material, spec.name.c_str());
+    auto body = std::make_unique<DeformableBody>(model, spec.name);
+    body->Reset(spec.pose, spec.velocity);
+    double kappa = spec.contact.stiffness.value_or(
+        scene_contact.stiffness.value_or(DefaultContactPressureStiffness(*model)));
+    if (kappa <= 0.0) kappa = DefaultContactPressureStiffness(*model);
+    world->kappa_.push_back(kappa);
+    world->friction_.push_back(
+        spec.contact.friction.value_or(scene_contact.friction.value_or(0.5)));
+    world->damping_.push_back(spec.contact.damping.value_or(scene_contact.damping.value_or(0.5)));
+    world->attach_body_.push_back(-1);
+    world->bodies_.push_back(std::move(body));
+  }
+
+  // rigid proxies
+  world->geom_has_proxy_.assign(m->ngeom, 0);
+  for (const RigidTetSpec& spec : scene.rigidtets) {
+    int body = mj_name2id(m, mjOBJ_BODY, spec.body.c_str());
+    if (body < 0)
+      ThrowAt(scene_path, spec.line, "<rigidtet>: no MuJoCo body named '" + spec.body + "'");
+    auto proxy = std::make_unique<Proxy>();
+    proxy->body = body;
+    RawMesh raw;
+    Eigen::Isometry3d X_BM = spec.pose;
+    if (!spec.geom.empty()) {
+      int geom = mj_name2id(m, mjOBJ_GEOM, spec.geom.c_str());
+      if (geom < 0) ThrowAt(scene_path, spec.line, "<rigidtet>: no geom named '" + spec.geom + "'");
+      if (m->geom_bodyid[geom] != body) {
+        ThrowAt(scene_path, spec.line,
+                "<rigidtet>: geom '" + spec.geom + "' does not belong to body '" + spec.body + "'");
+      }
+      raw = GeomMesh(m, geom, spec.resolution, spec.line, scene_path);
+      Eigen::Isometry3d X_BG = Eigen::Isometry3d::Identity();
+      X_BG.translation() = Eigen::Map<const Eigen::Vector3d>(m->geom_pos + 3 * geom);
+      const double* q = m->geom_quat + 4 * geom;
+      X_BG.linear() = Eigen::Quaterniond(q[0], q[1], q[2], q[3]).toRotationMatrix();
+      X_BM = X_BG;
+      world->geom_has_proxy_[geom] = 1;
+      proxy->friction = m->geom_friction[3 * geom];
+    } else {
+      try {
+        raw = ReadRawMesh(spec.file);
+      } catch (const Error& e) {
+        ThrowAt(scene_path, spec.line, std::string("<rigidtet>: ") + e.what());
+      }
+    }
+    raw.positions *= spec.scale;
+    for (Eigen::Index v = 0; v < raw.positions.rows(); ++v) {
+      raw.positions.row(v) = (X_BM * raw.positions.row(v).transpose()).transpose();
+    }
+    proxy->mesh = std::make_shared<TetMesh>(TetMesh::Build(std::move(raw)));
+    proxy->areas = ComputeContactAreas(*proxy->mesh);
+    proxy->positions = proxy->mesh->positions();
+    world->proxies_.push_back(std::move(proxy));
+  }
+
+  // attachments: pins that follow a MuJoCo body
+  for (const AttachSpec& spec : scene.attachments) {
+    int index = world->DeformableIndex(spec.tetbody);
+    int body = mj_name2id(m, mjOBJ_BODY, spec.body.c_str());
+    if (body < 0)
+      ThrowAt(scene_path, spec.line, "<attach>: no MuJoCo body named '" + spec.body + "'");
+    if (world->attach_body_[index] >= 0 && world->attach_body_[index] != body) {
+      ThrowAt(scene_path, spec.line,
+              "<attach>: tetbody '" + spec.tetbody +
+                  "' is attached to another body already; one body per tetbody");
+    }
+    DeformableBody& deformable = *world->bodies_[index];
+    std::vector<int> vertices;
+    for (int v : spec.vertices) {
+      if (v >= deformable.num_vertices()) {
+        ThrowAt(scene_path, spec.line,
+                "<attach>: vertex " + std::to_string(v) + " is out of range (" +
+                    std::to_string(deformable.num_vertices()) + " vertices)");
+      }
+      vertices.push_back(v);
+    }
+    for (int v = 0; v < deformable.num_vertices(); ++v) {
+      Eigen::Vector3d p = deformable.positions().row(v).transpose();
+      if (spec.box && (p.array() >= spec.box->first.array()).all() &&
+          (p.array() <= spec.box->second.array()).all()) {
+        vertices.push_back(v);
+      }
+      if (spec.sphere && (p - spec.sphere->first).norm() <= spec.sphere->second)
+        vertices.push_back(v);
+    }
+    if (vertices.empty())
+      ThrowAt(scene_path, spec.line,
+              "<attach>: the region holds no vertex of '" + spec.tetbody + "'");
+    deformable.PinToFrame(vertices, BodyPose(m, d, body));
+    world->attach_body_[index] = body;
+  }
+
+  world->ours_.assign(6 * m->nbody, 0.0);
+  world->accumulated_.assign(6 * m->nbody, 0.0);
+  PenetrationOptions penetration;
+  penetration.method = options.method.value_or(scene.method);
+  penetration.num_threads = options.threads;
+  world->solver_.set_options(penetration);
+  world->step_settings_.gravity = Eigen::Map<const Eigen::Vector3d>(m->opt.gravity);
+  world->step_settings_.solver = scene.solver.linear_solver;
+  world->step_settings_.cg_tolerance = scene.solver.tolerance;
+  world->step_settings_.cg_max_iterations = scene.solver.max_iterations;
+  world->step_settings_.num_threads = options.threads;
+  (void)dt;
+  return world;
+}
+
+double World::time() const {
+  return data_->time;
+}
+double World::timestep() const {
+  return model_->opt.timestep;
+}
+
+int World::BodyId(const std::string& name) const {
+  return mj_name2id(model_, mjOBJ_BODY, name.c_str());
+}
+
+int World::num_rigid_bodies() const {
+  return model_->nbody;
+}
+
+std::string World::RigidBodyName(int body) const {
+  const char* name = mj_id2name(model_, mjOBJ_BODY, body);
+  return name ? name : "body" + std::to_string(body);
+}
+
+Eigen::Vector3d World::RigidBodyPosition(int body) const {
+  return Eigen::Map<const Eigen::Vector3d>(data_->xpos + 3 * body);
+}
+
+Eigen::Quaterniond World::RigidBodyOrientation(int body) const {
+  const double* q = data_->xquat + 4 * body;
+  return Eigen::Quaterniond(q[0], q[1], q[2], q[3]);
+}
+
+Eigen::Vector3d World::RigidBodyLinearVelocity(int body) const {
+  double velocity[6];
+  mj_objectVelocity(model_, data_, mjOBJ_BODY, body, velocity, 0);
+  return Eigen::Vector3d(velocity[3], velocity[4], velocity[5]);
+}
+
+Eigen::Vector3d World::RigidBodyAngularVelocity(int body) const {
+  double velocity[6];
+  mj_objectVelocity(model_, data_, mjOBJ_BODY, body, velocity, 0);
+  return Eigen::Vector3d(velocity[0], velocity[1], velocity[2]);
+}
+
+int World::DeformableIndex(const std::string& name) const {
+  for (size_t i = 0; i < bodies_.size(); ++i) {
+    if (bodies_[i]->name() == name) return static_cast<int>(i);
+  }
+  return -1;
+}
+
+Eigen::Vector3d World::PointVelocity(int body, const Eigen::Vector3d& p) const {
+  if (body <= 0) return Eigen::Vector3d::Zero();
+  double velocity[6];  // angular, then linear at the body origin xpos, world frame
+  mj_objectVelocity(model_, data_, mjOBJ_BODY, body, velocity, 0);
+  Eigen::Vector3d omega(velocity[0], velocity[1], velocity[2]);
+  Eigen::Vector3d v(velocity[3], velocity[4], velocity[5]);
+  return v + omega.cross(p - Eigen::Map<const Eigen::Vector3d>(data_->xpos + 3 * body));
+}
+
+// force at a world point -> force and torque about the centre of mass xipos
+void World::AddRigidForce(int body, const Eigen::Vector3d& point, const Eigen::Vector3d& force) {
+  if (body <= 0) return;  // the world body does not move
+  Eigen::Vector3d arm = point - Eigen::Map<const Eigen::Vector3d>(data_->xipos + 3 * body);
+  Eigen::Map<Eigen::Vector3d>(accumulated_.data() + 6 * body) += force;                 // force
+  Eigen::Map<Eigen::Vector3d>(accumulated_.data() + 6 * body + 3) += arm.cross(force);  // torque
+}
+
+void World::UpdateProxies() {
+  for (auto& proxy : proxies_) {
+    Eigen::Isometry3d X_WB = BodyPose(model_, data_, proxy->body);
+    const Positions& rest = proxy->mesh->positions();
+    for (Eigen::Index v = 0; v < rest.rows(); ++v) {
+      proxy->positions.row(v) = (X_WB * rest.row(v).transpose()).transpose();
+    }
+  }
+}
+
+void World::AddGeomContacts() {
+  const mjModel* m = model_;
+  for (int g = 0; g < m->ngeom; ++g) {
+    if (geom_has_proxy_[g]) continue;
+    if (!(m->geom_contype[g] & 1) && !(m->geom_conaffinity[g] & 1))
+      continue;  // deformables: contype = conaffinity = 1
+    const int type = m->geom_type[g];
+    if (type != mjGEOM_PLANE && type != mjGEOM_SPHERE && type != mjGEOM_CAPSULE &&
+        type != mjGEOM_BOX && type != mjGEOM_CYLINDER) {
+      continue;
+    }
+    Eigen::Vector3d x_g = Eigen::Map<const Eigen::Vector3d>(data_->geom_xpos + 3 * g);
+    Eigen::Matrix3d R_g =
+        Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(data_->geom_xmat + 9 * g);
+    const int body = m->geom_bodyid[g];
+    for (size_t i = 0; i < bodies_.size(); ++i) {
+      const DeformableBody& deformable = *bodies_[i];
+      for (int v = 0; v < deformable.num_vertices(); ++v) {
+        Eigen::Vector3d p = deformable.positions().row(v).transpose();
+        if (type != mjGEOM_PLANE && (p - x_g).norm() > m->geom_rbound[g]) continue;
+        double distance = 0.0;
+        Eigen::Vector3d normal = Eigen::Vector3d::UnitZ();
+        GeomDistance(type, m->geom_size + 3 * g, R_g.transpose() * (p - x_g), distance, normal);
+        if (distance >= 0.0) continue;
+        ContactPoint contact;
+        contact.body_a = static_cast<int>(i);
+        contact.vertex_a = v;
+        contact.velocity_b = PointVelocity(body, p);
+        contact.mass_b = body > 0 ? m->body_mass[body] : 0.0;
+        contact.depth = -distance;
+        contact.direction = R_g * normal;
+        contact.stiffness = kappa_[i] * deformable.model().contact_areas()[v];
+        contact.friction =
+            std::max(friction_[i], m->geom_friction[3 * g]);  // MuJoCo combines by max
+        contacts_.push_back(contact);
+        contact_rigid_body_.push_back(body);
+      }
+    }
+  }
+}
+
+void World::CollectContacts(double dt) {
+  (void)dt;
+  contacts_.clear();
+  contact_rigid_body_.clear();
+  objects_.clear();
+  for (size_t i = 0; i < bodies_.size(); ++i) {
+    objects_.push_back(
+        {&bodies_[i]->mesh(), &bodies_[i]->positions(), false, scene_.tetbodies[i].self_collide});
+  }
+  for (const auto& proxy : proxies_)
+    objects_.push_back({proxy->mesh.get(), &proxy->positions, true, false});
+  const int num_deformables = static_cast<int>(bodies_.size());
+  for (const PenetrationResult& r : solver_.Solve(objects_)) {
+    ContactPoint contact;
+    contact.depth = r.depth;
+    contact.direction = r.direction;
+    int rigid = -1;
+    if (r.object < num_deformables) {
+      contact.body_a = r.object;
+      contact.vertex_a = r.vertex;
+      contact.stiffness = kappa_[r.object] * bodies_[r.object]->model().contact_areas()[r.vertex];
+      contact.friction = friction_[r.object];
+    } else {
+      const Proxy& proxy = *proxies_[r.object - num_deformables];
+      rigid = proxy.body;
+      Eigen::Vector3d p = proxy.positions.row(r.vertex).transpose();
+      contact.velocity_a = PointVelocity(proxy.body, p);
+      contact.mass_a = model_->body_mass[proxy.body];
+      contact.stiffness = kappa_[r.penetrated] * proxy.areas[r.vertex];
+      contact.friction = std::max(friction_[r.penetrated], proxy.friction);
+    }
+    if (r.penetrated < num_deformables) {
+      contact.body_b = r.penetrated;
+      contact.tet_b = r.tet;
+      contact.barycentric_b = r.barycentric;
+    } else {
+      const Proxy& proxy = *proxies_[r.penetrated - num_deformables];
+      rigid = proxy.body;
+      Eigen::Vector3d p = bodies_[r.object]->positions().row(r.vertex).transpose();
+      contact.velocity_b = PointVelocity(proxy.body, p);
+      contact.mass_b = model_->body_mass[proxy.body];
+      contact.friction = std::max(contact.friction, proxy.friction);
+    }
+    contacts_.push_back(contact);
+    contact_rigid_body_.push_back(rigid);
+  }
+  const PenetrationStats& stats = solver_.stats();
+  metrics_.fallback_points = stats.fallback;
+  metrics_.unresolved_points = stats.unresolved;
+  AddGeomContacts();
+}
+
+void World::Step() {
+  Clock::time_point start = Clock::now();
+  metrics_ = {};
+  if (controller_) controller_(*this);
+  mjModel* m = model_;
+  mjData* d = data_;
+  // the user's part of xfrc_applied: whatever is there beyond what we wrote
+  std::vector<double> user(6 * m->nbody);
+  for (int i = 0; i < 6 * m->nbody; ++i) user[i] = d->xfrc_applied[i] - ours_[i];
+
+  Clock::time_point phase = Clock::now();
+  mj_step1(m, d);
+  metrics_.mujoco_ms += MillisecondsSince(phase);
+
+  const int substeps = std::max(1, scene_.solver.substeps);
+  StepSettings settings = step_settings_;
+  settings.dt = m->opt.timestep / substeps;
+  std::fill(accumulated_.begin(), accumulated_.end(), 0.0);
+  std::vector<DeformableBody*> bodies;
+  for (auto& body : bodies_) bodies.push_back(body.get());
+  for (int substep = 0; substep < substeps; ++substep) {
+    phase = Clock::now();
+    UpdateProxies();
+    CollectContacts(settings.dt);
+    for (size_t i = 0; i < bodies_.size(); ++i) {
+      if (attach_body_[i] >= 0) {
+        // pins follow the body over this substep (predicted from its velocity)
+        int body = attach_body_[i];
+        double velocity[6];
+        mj_objectVelocity(m, d, mjOBJ_BODY, body, velocity, 0);
+        Eigen::Isometry3d X = BodyPose(m, d, body);
+        Eigen::Vector3d omega(velocity[0], velocity[1], velocity[2]);
+        double t = settings.dt * (substep + 1);
+        if (omega.norm() > 0.0)
+          X.linear() = Eigen::AngleAxisd(omega.norm() * t, omega.normalized()) * X.linear();
+        X.translation() += t * Eigen::Vector3d(velocity[3], velocity[4], velocity[5]);
+        bodies_[i]->SetPinFrame(X);
+      }
+    }
+    metrics_.collision_ms += MillisecondsSince(phase);
+    phase = Clock::now();
+    ContactSettings contact_settings = contact_settings_;
+    CoupledStepReport report = StepCoupled(bodies, contacts_, contact_settings, settings);
+    metrics_.solver_iterations += report.iterations;
+    metrics_.deformable_ms += MillisecondsSince(phase);
+    if (report.status != StepStatus::kOk) {
+      metrics_.status = report.status;
+      std::ostringstream message;
+      message << "tetbody '" << bodies_[report.bad_body]->name() << "' vertex " << report.bad_vertex
+              << " became non-finite at step " << steps_ << " (t = " << d->time
+              << " s); try a smaller timestep, more substeps or a softer contact stiffness";
+      metrics_.message = message.str();
+      return;
+    }
+    // reactions on the rigid bodies, averaged over substeps
+    for (size_t c = 0; c < contacts_.size(); ++c) {
+      const ContactPoint& contact = contacts_[c];
+      const int body = contact_rigid_body_[c];
+      if (body < 0) continue;
+      Eigen::Vector3d point =
+          contact.body_a >= 0
+              ? Eigen::Vector3d(
+                    bodies_[contact.body_a]->positions().row(contact.vertex_a).transpose())
+              : Eigen::Vector3d::Zero();
+      if (contact.body_a < 0) {
+        // a proxy vertex inside a deformable: the proxy body gets the force on A
+        const auto tet = bodies_[contact.body_b]->mesh().tets().row(contact.tet_b);
+        for (int k = 0; k < 4; ++k)
+          point += contact.barycentric_b[k] *
+                   bodies_[contact.body_b]->positions().row(tet[k]).transpose();
+        AddRigidForce(body, point, contact.force / substeps);
+      } else {
+        AddRigidForce(body, point, -contact.force / substeps);
+      }
+    }
+    for (size_t i = 0; i < bodies_.size(); ++i) {
+      if (attach_body_[i] < 0) continue;
+      const DeformableBody& body = *bodies_[i];
+      for (size_t k = 0; k < body.pinned_vertices().size(); ++k) {
+        AddRigidForce(attach_body_[i], body.positions().row(body.pinned_vertices()[k]).transpose(),
+                      -body.pin_forces()[k] / substeps);
+      }
+    }
+    for (const ContactPoint& contact : contacts_) {
+      metrics_.max_depth = std::max(metrics_.max_depth, contact.depth);
+      metrics_.mean_depth += contact.depth;
+    }
+    metrics_.colliding_points =
+        std::max(metrics_.colliding_points, static_cast<int>(contacts_.size()));
+    if (!contacts_.empty()) metrics_.mean_depth /= static_cast<double>(contacts_.size());
+  }
+  // xfrc_applied: the user's forces + ours (MuJoCo order: force, then torque)
+  for (int b = 0; b < m->nbody; ++b) {
+    for (int k = 0; k < 6; ++k) {
+      // accumulated_ holds force at 0..2 and torque at 3..5, like xfrc_applied
+      ours_[6 * b + k] = accumulated_[6 * b + k];
+      d->xfrc_applied[6 * b + k] = user[6 * b + k] + ours_[6 * b + k];
+    }
+  }
+  phase = Clock::now();
+  mj_step2(m, d);
+  // bring poses and velocities (xpos, xipos, cvel) up to the new state, so
+  // that what the world reports between steps is current
+  mj_kinematics(m, d);
+  mj_comPos(m, d);
+  mj_comVel(m, d);
+  metrics_.mujoco_ms += MillisecondsSince(phase);
+  ++steps_;
+  metrics_.total_ms = MillisecondsSince(start);
+}
+
+Eigen::Vector3d World::LinearMomentum() const {
+  Eigen::Vector3d p = Eigen::Vector3d::Zero();
+  for (const auto& body : bodies_) p += body->LinearMomentum();
+  for (int b = 1; b < model_->nbody; ++b) {
+    Eigen::Vector3d com = Eigen::Map<const Eigen::Vector3d>(data_->xipos + 3 * b);
+    p += model_->body_mass[b] * PointVelocity(b, com);
+  }
+  return p;
+}
+
+double World::DeformableKineticEnergy() const {
+  double energy = 0.0;
+  for (const auto& body : bodies_) energy += body->KineticEnergy();
+  return energy;
+}
+
+double World::RigidKineticEnergy() const {
+  double energy = 0.0;
+  for (int b = 1; b < model_->nbody; ++b) {
+    double velocity[6];
+    mj_objectVelocity(model_, data_, mjOBJ_BODY, b, velocity, 1);  // local frame at xpos
+    Eigen::Vector3d com = Eigen::Map<const Eigen::Vector3d>(data_->xipos + 3 * b);
+    Eigen::Vector3d v = PointVelocity(b, com);
+    // rotational energy with the principal inertia in the inertial frame
+    Eigen::Matrix3d R_WI =
+        Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(data_->ximat + 9 * b);
+    Eigen::Matrix3d R_WB =
+        Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(data_->xmat + 9 * b);
+    Eigen::Vector3d omega_I =
+        R_WI.transpose() * (R_WB * Eigen::Vector3d(velocity[0], velocity[1], velocity[2]));
+    Eigen::Vector3d inertia = Eigen::Map<const Eigen::Vector3d>(model_->body_inertia + 3 * b);
+    energy += 0.5 * model_->body_mass[b] * v.squaredNorm() +
+              0.5 * omega_I.dot(inertia.cwiseProduct(omega_I));
+  }
+  return energy;
+}
+
+}  // namespace tetcosim

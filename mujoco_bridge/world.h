@@ -1,0 +1,145 @@
+#pragma once
+
+// tetcosim::World: a MuJoCo model with tetrahedral deformable bodies, coupled
+// both ways. One Step() (docs/architecture.md, "A step"):
+//   1. mj_step1: MuJoCo's positions, velocities and forces of the step start;
+//   2. rigid proxies follow their bodies (xpos, xmat); rigid point
+//      velocities from mj_objectVelocity;
+//   3. collision: consistent (or closest-feature) penetration depth between
+//      deformables and proxies, analytic signed distance to primitive geoms;
+//   4. the deformables advance by dt (or substeps) in one coupled implicit
+//      solve, which yields the contact forces actually integrated;
+//   5. xfrc_applied = the user's own applied forces + the reactions of those
+//      contact forces and of attachments, each turned into force plus torque
+//      about the body's centre of mass xipos, world frame;
+//   6. mj_step2 with those forces.
+// The force on a deformable vertex is exactly opposite to what the rigid
+// body receives.
+
+#include <Eigen/Core>
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "collision/penetration.h"
+#include "deformable/coupled_step.h"
+#include "deformable/deformable_body.h"
+#include "mujoco_bridge/scene.h"
+
+struct mjModel_;
+struct mjData_;
+
+namespace tetcosim {
+
+struct WorldOptions {
+  std::optional<DepthMethod> method;  // overrides the scene's <contact method>
+  int threads = 1;
+  std::optional<double> timestep;  // overrides the MJCF's <option timestep>
+};
+
+// Per-step figures (the last Step()).
+struct StepMetrics {
+  int colliding_points = 0;  // penetration results + geom contacts
+  int fallback_points = 0;
+  int unresolved_points = 0;
+  double max_depth = 0.0;
+  double mean_depth = 0.0;
+  double collision_ms = 0.0;
+  double deformable_ms = 0.0;
+  double mujoco_ms = 0.0;
+  double total_ms = 0.0;
+  int solver_iterations = 0;
+  StepStatus status = StepStatus::kOk;
+  std::string message;  // with kDiverged: body, vertex, step
+};
+
+class World {
+ public:
+  static std::unique_ptr<World> Load(const std::string& scene_path,
+                                     const WorldOptions& options = {});
+  ~World();
+  World(const World&) = delete;
+  World& operator=(const World&) = delete;
+
+  // Advances everything by one MuJoCo time step. A non-finite state is
+  // reported in metrics().status; the world then stays as it was.
+  void Step();
+  // Called at the start of every Step(), before mj_step1: set ctrl, apply
+  // forces (xfrc_applied is kept as the user left it).
+  void SetController(std::function<void(World&)> controller) {
+    controller_ = std::move(controller);
+  }
+
+  double time() const;
+  double timestep() const;
+  long steps() const { return steps_; }
+  const StepMetrics& metrics() const { return metrics_; }
+  const SceneSpec& scene() const { return scene_; }
+
+  const mjModel_* mj_model() const { return model_; }
+  mjData_* mj_data() { return data_; }
+  const mjData_* mj_data() const { return data_; }
+  int BodyId(const std::string& name) const;
+  // MuJoCo bodies 0 (world) .. num_rigid_bodies() - 1.
+  int num_rigid_bodies() const;
+  std::string RigidBodyName(int body) const;
+  // Position (xpos) and orientation (xquat, w x y z) of a body, world frame.
+  Eigen::Vector3d RigidBodyPosition(int body) const;
+  Eigen::Quaterniond RigidBodyOrientation(int body) const;
+  // Linear velocity of the body origin and angular velocity, world frame.
+  Eigen::Vector3d RigidBodyLinearVelocity(int body) const;
+  Eigen::Vector3d RigidBodyAngularVelocity(int body) const;
+
+  int num_deformables() const { return static_cast<int>(bodies_.size()); }
+  DeformableBody& deformable(int i) { return *bodies_[i]; }
+  const DeformableBody& deformable(int i) const { return *bodies_[i]; }
+  int DeformableIndex(const std::string& name) const;
+  const std::vector<ContactPoint>& contacts() const { return contacts_; }
+  const std::vector<PenetrationResult>& penetrations() const { return solver_.results(); }
+  int num_proxies() const { return static_cast<int>(proxies_.size()); }
+
+  // Totals over deformables and MuJoCo bodies (world frame).
+  Eigen::Vector3d LinearMomentum() const;
+  double DeformableKineticEnergy() const;
+  double RigidKineticEnergy() const;
+  // Forces this world put on each MuJoCo body in the last step (nbody x 6:
+  // torque then force, about xipos, world frame), without the user's.
+  const std::vector<double>& coupling_forces() const { return ours_; }
+
+ private:
+  World() = default;
+  struct Proxy;
+  struct GeomContact;
+
+  void UpdateProxies();
+  void CollectContacts(double dt);
+  void AddGeomContacts();
+  Eigen::Vector3d PointVelocity(int body, const Eigen::Vector3d& p) const;
+  void AddRigidForce(int body, const Eigen::Vector3d& point, const Eigen::Vector3d& force);
+
+  SceneSpec scene_;
+  WorldOptions options_;
+  mjModel_* model_ = nullptr;
+  mjData_* data_ = nullptr;
+  std::vector<std::unique_ptr<DeformableBody>> bodies_;
+  std::vector<double> kappa_;     // per deformable: contact stiffness per area and depth
+  std::vector<double> friction_;  // per deformable
+  std::vector<double> damping_;   // per deformable: damping ratio
+  std::vector<int> attach_body_;  // per deformable: MuJoCo body of its pins, or -1
+  std::vector<std::unique_ptr<Proxy>> proxies_;
+  std::vector<char> geom_has_proxy_;
+  PenetrationSolver solver_;
+  std::vector<CollisionObject> objects_;
+  std::vector<ContactPoint> contacts_;
+  std::vector<int> contact_rigid_body_;  // per contact: MuJoCo body on the rigid side, or -1
+  std::vector<double> ours_;             // nbody x 6, written last step
+  std::vector<double> accumulated_;      // nbody x 6, this step
+  std::function<void(World&)> controller_;
+  StepSettings step_settings_;
+  ContactSettings contact_settings_;
+  StepMetrics metrics_;
+  long steps_ = 0;
+};
+
+}  // namespace tetcosim

@@ -1,0 +1,215 @@
+#include "mujoco_bridge/world.h"
+
+#include <gtest/gtest.h>
+#include <mujoco/mujoco.h>
+
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+
+#include "mesh/error.h"
+
+namespace tetcosim {
+namespace {
+
+const std::string kData = TETCOSIM_TEST_DATA_DIR;
+
+class TempDir {
+ public:
+  TempDir()
+      : path_(std::filesystem::temp_directory_path() /
+              ("tetcosim_world_" + std::to_string(::getpid()))) {
+    std::filesystem::create_directories(path_);
+  }
+  ~TempDir() { std::filesystem::remove_all(path_); }
+  std::string Write(const std::string& name, const std::string& text) const {
+    std::ofstream(path_ / name) << text;
+    return (path_ / name).string();
+  }
+  const std::filesystem::path& path() const { return path_; }
+
+ private:
+  std::filesystem::path path_;
+};
+
+std::string ErrorOf(const std::string& path) {
+  try {
+    World::Load(path);
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(SceneLoading, IncludesAndRelativeFilesResolveFromAnotherWorkingDirectory) {
+  std::filesystem::path cwd = std::filesystem::current_path();
+  std::filesystem::current_path(std::filesystem::temp_directory_path());
+  std::unique_ptr<World> world = World::Load(kData + "/scenes/with_include.xml");
+  std::filesystem::current_path(cwd);
+  EXPECT_EQ(world->num_deformables(), 1);
+  EXPECT_EQ(world->num_proxies(), 1);
+  EXPECT_GE(world->BodyId("table"), 1);
+}
+
+TEST(SceneLoading, BadScenesNameTheLine) {
+  TempDir dir;
+  const std::string head =
+      "<mujoco>\n<worldbody>\n<body name=\"b\"><freejoint/><geom name=\"g\" type=\"box\" size=\".1 "
+      ".1 .1\"/></body>\n</worldbody>\n<deformable>\n";
+  struct Case {
+    std::string body;
+    std::string expected;
+  };
+  const Case cases[] = {
+      {"<blob/>\n", "scene.xml:6: <blob>: unknown element inside <deformable>"},
+      {"<tetbody name=\"a\" shape=\"sphere\" size=\"0.1\" colour=\"red\"/>\n",
+       "scene.xml:6: <tetbody>: unknown attribute 'colour'"},
+      {"<tetbody name=\"a\" shape=\"sphere\" size=\"0.1\" young=\"-5\"/>\n",
+       "scene.xml:6: <tetbody>: young = -5 is outside"},
+      {"<tetbody name=\"a\" shape=\"sphere\" size=\"0.1\" poisson=\"0.5\"/>\n",
+       "poisson = 0.5 is outside"},
+      {"<tetbody name=\"a\" file=\"missing.msh\"/>\n",
+       "scene.xml:6: <tetbody>: file 'missing.msh' does not exist"},
+      {"<tetbody name=\"a\" shape=\"blob\" size=\"0.1\"/>\n",
+       "scene.xml:6: <tetbody name=\"a\">: tetbody 'a': unknown shape 'blob'"},
+      {"<tetbody name=\"a\" shape=\"sphere\" size=\"0.1\" pos=\"1 2\"/>\n",
+       "pos takes 3 numbers, got 2"},
+      {"<rigidtet body=\"nobody\" geom=\"g\"/>\n",
+       "scene.xml:6: <rigidtet>: no MuJoCo body named 'nobody'"},
+      {"<contact method=\"nearest\"/>\n",
+       "scene.xml:6: <contact>: method must be consistent or closest"},
+      {"<tetbody name=\"a\" shape=\"sphere\" size=\"0.1\"/>\n<attach tetbody=\"zz\" body=\"b\" "
+       "vertices=\"0\"/>\n",
+       "scene.xml:7: <attach>: no tetbody named 'zz'"},
+  };
+  for (const Case& c : cases) {
+    std::string path = dir.Write("scene.xml", head + c.body + "</deformable>\n</mujoco>\n");
+    std::string message = ErrorOf(path);
+    EXPECT_NE(message.find(c.expected), std::string::npos)
+        << "got: " << message << "\nexpected: " << c.expected;
+  }
+  EXPECT_NE(
+      ErrorOf(dir.Write("bad.xml",
+                        "<mujoco><worldbody>\n<geom type=\"nonsense\"/></worldbody></mujoco>"))
+          .find("MuJoCo rejected the scene"),
+      std::string::npos);
+  EXPECT_NE(ErrorOf(dir.Write("xml.xml", "<mujoco>\n<worldbody>\n</mujoco>"))
+                .find("xml.xml:2: not well-formed XML"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf((dir.path() / "none.xml").string()).find("cannot open"), std::string::npos);
+}
+
+// zero gravity: a soft ball thrown at a free rigid box (with a tetrahedral
+// proxy): the total linear momentum of deformable vertices and MuJoCo bodies
+// is conserved through the impact
+TEST(Coupling, MomentumIsConservedThroughARigidImpact) {
+  TempDir dir;
+  std::string path = dir.Write("impact.xml", R"(<mujoco>
+  <option timestep="0.001" gravity="0 0 0"/>
+  <worldbody>
+    <body name="box" pos="0.2 0 0"><freejoint/><geom name="box" type="box" size="0.05 0.05 0.05" mass="0.5"/></body>
+  </worldbody>
+  <deformable>
+    <rigidtet body="box" geom="box" resolution="4"/>
+    <tetbody name="ball" shape="sphere" size="0.05" resolution="2" pos="0 0.01 0" vel="2 0 0" young="1e5"/>
+  </deformable>
+</mujoco>)");
+  std::unique_ptr<World> world = World::Load(path);
+  const Eigen::Vector3d p0 = world->LinearMomentum();
+  int contact_steps = 0;
+  for (int s = 0; s < 200; ++s) {
+    world->Step();
+    ASSERT_EQ(world->metrics().status, StepStatus::kOk) << world->metrics().message;
+    contact_steps += world->metrics().colliding_points > 0;
+  }
+  const Eigen::Vector3d p1 = world->LinearMomentum();
+  EXPECT_GT(contact_steps, 10);
+  EXPECT_GT(world->RigidBodyLinearVelocity(world->BodyId("box")).x(), 0.5) << "the box was hit";
+  EXPECT_LT((p1 - p0).norm(), 1e-3 * p0.norm())
+      << "before " << p0.transpose() << " after " << p1.transpose();
+}
+
+// a constant force the user put in xfrc_applied keeps acting while contacts
+// come and go: the total momentum grows by exactly F t
+TEST(Coupling, UserAppliedForcePersistsThroughContacts) {
+  TempDir dir;
+  std::string path = dir.Write("push.xml", R"(<mujoco>
+  <option timestep="0.001" gravity="0 0 0"/>
+  <worldbody>
+    <body name="box" pos="0.2 0 0"><freejoint/><geom name="box" type="box" size="0.05 0.05 0.05" mass="0.5"/></body>
+  </worldbody>
+  <deformable>
+    <rigidtet body="box" geom="box" resolution="4"/>
+    <tetbody name="ball" shape="sphere" size="0.05" resolution="2" pos="0 0.01 0" vel="2 0 0" young="1e5"/>
+  </deformable>
+</mujoco>)");
+  std::unique_ptr<World> world = World::Load(path);
+  const int box = world->BodyId("box");
+  world->mj_data()->xfrc_applied[6 * box + 1] = 0.3;  // 0.3 N along +y, set once
+  const Eigen::Vector3d p0 = world->LinearMomentum();
+  int contact_steps = 0;
+  const int steps = 300;
+  for (int s = 0; s < steps; ++s) {
+    world->Step();
+    contact_steps += world->metrics().colliding_points > 0;
+  }
+  EXPECT_GT(contact_steps, 10);
+  EXPECT_LT(contact_steps, steps) << "contacts also ended";
+  EXPECT_DOUBLE_EQ(
+      world->mj_data()->xfrc_applied[6 * box + 1] - world->coupling_forces()[6 * box + 1], 0.3);
+  const Eigen::Vector3d dp = world->LinearMomentum() - p0;
+  EXPECT_NEAR(dp.y(), 0.3 * steps * 0.001, 1e-3 * 0.3 * steps * 0.001 + 1e-6);
+}
+
+TEST(Coupling, CubeRestsOnAFreeBoxWithoutDrift) {
+  std::unique_ptr<World> world =
+      World::Load(std::string(TETCOSIM_SOURCE_DIR) + "/models/scenes/cube_on_box.xml");
+  for (int s = 0; s < 1000; ++s) {
+    world->Step();
+    ASSERT_EQ(world->metrics().status, StepStatus::kOk) << world->metrics().message;
+  }
+  Eigen::Vector3d cube = world->deformable(0).CenterOfMass();
+  Eigen::Vector3d box = world->RigidBodyPosition(world->BodyId("box"));
+  for (int s = 0; s < 500; ++s) world->Step();
+  EXPECT_LT((world->deformable(0).CenterOfMass() - cube).norm(), 1e-4)
+      << "no drift over one second";
+  EXPECT_LT((world->RigidBodyPosition(world->BodyId("box")) - box).norm(), 1e-4);
+  EXPECT_LT(world->DeformableKineticEnergy(), 1e-6);
+  EXPECT_LT(world->RigidKineticEnergy(), 1e-6);
+  EXPECT_NEAR(world->deformable(0).CenterOfMass().z(), 0.1 + 0.04, 0.002)
+      << "resting on the box top";
+}
+
+TEST(RunCommand, OutputsParse) {
+  TempDir dir;
+  std::string command = std::string(TETCOSIM_BINARY) + " run " + TETCOSIM_SOURCE_DIR +
+                        "/models/scenes/cube_on_box.xml --duration 0.2 --vtk --fps 50 --out " +
+                        (dir.path() / "out").string() + " > /dev/null";
+  ASSERT_EQ(std::system(command.c_str()), 0) << command;
+  std::ifstream summary_file(dir.path() / "out" / "summary.json");
+  nlohmann::json summary = nlohmann::json::parse(summary_file);
+  EXPECT_EQ(summary["status"], "ok");
+  EXPECT_EQ(summary["steps"], 100);
+  EXPECT_NEAR(summary["sim_time"].get<double>(), 0.2, 1e-9);
+  std::ifstream steps(dir.path() / "out" / "steps.csv");
+  std::string header, line;
+  std::getline(steps, header);
+  EXPECT_EQ(header,
+            "step,time,colliding_points,max_depth,mean_depth,kinetic_deformable,kinetic_rigid,px,"
+            "py,pz,wall_ms");
+  int rows = 0;
+  while (std::getline(steps, line)) ++rows;
+  EXPECT_EQ(rows, 100);
+  EXPECT_TRUE(std::filesystem::exists(dir.path() / "out" / "vtk" / "series.pvd"));
+  EXPECT_TRUE(std::filesystem::exists(dir.path() / "out" / "vtk" / "cube_0.vtu"));
+  if (std::system("/usr/bin/python3 -c 'import meshio' 2>/dev/null") == 0) {
+    std::string check =
+        "/usr/bin/python3 -c \"import meshio; m = meshio.read('" +
+        (dir.path() / "out" / "vtk" / "cube_9.vtu").string() +
+        "'); assert len(m.points) == 125 and len(m.get_cells_type('tetra')) == 384\"";
+    EXPECT_EQ(std::system(check.c_str()), 0);
+  }
+}
+
+}  // namespace
+}  // namespace tetcosim
