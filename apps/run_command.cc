@@ -16,6 +16,7 @@
 #include "apps/commands.h"
 #include "mesh/error.h"
 #include "mesh/mesh_io.h"
+#include "mujoco_bridge/renderer.h"
 #include "mujoco_bridge/world.h"
 
 namespace tetcosim::app {
@@ -34,6 +35,11 @@ struct RunOptions {
   std::string out = "out";
   double fps = 30.0;
   bool vtk = false;
+  bool render = false;
+  bool video = false;
+  int width = 640;
+  int height = 480;
+  std::string camera;
   int threads = 1;
   double timestep = 0.0;
 };
@@ -78,6 +84,11 @@ void RunRollout(const RunOptions& options) {
   std::filesystem::create_directories(out, error);
   if (error) throw Error(options.out + ": cannot create the output folder: " + error.message());
   if (options.vtk) std::filesystem::create_directories(out / "vtk");
+  std::unique_ptr<Renderer> renderer;
+  if (options.render || options.video) {
+    std::filesystem::create_directories(out / "frames");
+    renderer = std::make_unique<Renderer>(*world, options.width, options.height, options.camera);
+  }
 
   std::ofstream steps_csv(out / "steps.csv");
   std::ofstream bodies_csv(out / "bodies.csv");
@@ -140,6 +151,12 @@ void RunRollout(const RunOptions& options) {
         bodies_csv << line;
       }
       if (options.vtk) WriteVtkFrame(*world, out / "vtk", frame, series);
+      if (renderer) {
+        char name[32];
+        std::snprintf(name, sizeof(name), "%05d.png", frame);
+        WritePng((out / "frames" / name).string(), renderer->Render(), renderer->width(),
+                 renderer->height());
+      }
       ++frame;
       steps_csv.flush();
       bodies_csv.flush();
@@ -195,6 +212,28 @@ void RunRollout(const RunOptions& options) {
               sum_ms[0] / n, sum_ms[1] / n, sum_ms[2] / n, sum_ms[3] / n);
   std::printf("  wrote %s/summary.json, steps.csv, bodies.csv%s\n", options.out.c_str(),
               options.vtk ? ", vtk/" : "");
+  if (options.video && frame > 0) {
+    if (std::system("command -v ffmpeg > /dev/null 2>&1") != 0) {
+      std::fprintf(
+          stderr,
+          "tetcosim: no video: ffmpeg is not installed (scripts/install-deps installs it); "
+          "the frames are in %s/frames\n",
+          options.out.c_str());
+    } else {
+      // frames at the rollout's frame rate; even sizes for yuv420p
+      std::string command =
+          "ffmpeg -loglevel error -y -framerate " + std::to_string(1.0 / (frame_every * dt)) +
+          " -i '" + (out / "frames" / "%05d.png").string() +
+          "' -vf 'pad=ceil(iw/2)*2:ceil(ih/2)*2' -pix_fmt yuv420p -c:v libx264 '" +
+          (out / "video.mp4").string() + "'";
+      if (std::system(command.c_str()) != 0) {
+        std::fprintf(stderr, "tetcosim: ffmpeg failed; the frames are in %s/frames\n",
+                     options.out.c_str());
+      } else {
+        std::printf("  wrote %s/video.mp4 (%d frames)\n", options.out.c_str(), frame);
+      }
+    }
+  }
   if (status == "diverged") throw Error(message);
   if (status == "interrupted") throw Error("interrupted; the outputs written so far are complete");
 }
@@ -218,6 +257,13 @@ void AddRunCommand(CLI::App& app) {
       ->check(CLI::PositiveNumber);
   run->add_flag("--vtk", options->vtk,
                 "Write the deformable meshes per frame (vtk/*.vtu, series.pvd)");
+  run->add_flag("--render", options->render, "Render frames offscreen (frames/NNNNN.png)");
+  run->add_flag("--video", options->video, "Render frames and make video.mp4 with ffmpeg");
+  run->add_option("--width", options->width, "Image width (default 640)")
+      ->check(CLI::Range(16, 8192));
+  run->add_option("--height", options->height, "Image height (default 480)")
+      ->check(CLI::Range(16, 8192));
+  run->add_option("--camera", options->camera, "A camera of the scene (default: a free camera)");
   run->add_option("--threads", options->threads, "Threads (default 1)")->check(CLI::Range(1, 256));
   run->add_option("--timestep", options->timestep, "Override the scene's timestep (s)")
       ->check(CLI::PositiveNumber);

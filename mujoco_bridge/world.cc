@@ -117,6 +117,31 @@ RawMesh GeomMesh(const mjModel* m, int geom, int resolution, long line, const st
   }
 }
 
+// an MJCF <skin> of a deformable's surface with one bone on the world body:
+// the renderer overwrites its vertices every frame (renderer.h)
+std::string SkinXml(const DeformableBody& body, const Eigen::Vector4d& rgba,
+                    const std::string& name) {
+  const TetMesh& mesh = body.mesh();
+  const std::vector<int>& surface_vertices = mesh.surface_vertices();
+  std::vector<int> index(mesh.num_vertices(), -1);
+  for (size_t i = 0; i < surface_vertices.size(); ++i)
+    index[surface_vertices[i]] = static_cast<int>(i);
+  std::ostringstream xml;
+  xml.precision(9);
+  xml << "<skin name=\"" << name << "\" rgba=\"" << rgba.transpose() << "\" vertex=\"";
+  for (int v : surface_vertices) xml << body.positions().row(v) << " ";
+  xml << "\" face=\"";
+  for (Eigen::Index f = 0; f < mesh.surface().rows(); ++f) {
+    for (int k = 0; k < 3; ++k) xml << index[mesh.surface()(f, k)] << " ";
+  }
+  xml << "\">\n<bone body=\"world\" bindpos=\"0 0 0\" bindquat=\"1 0 0 0\" vertid=\"";
+  for (size_t i = 0; i < surface_vertices.size(); ++i) xml << i << " ";
+  xml << "\" vertweight=\"";
+  for (size_t i = 0; i < surface_vertices.size(); ++i) xml << "1 ";
+  xml << "\"/>\n</skin>\n";
+  return xml.str();
+}
+
 }  // namespace
 
 struct World::Proxy {
@@ -138,40 +163,9 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
   world->scene_ = ParseScene(scene_path);
   const SceneSpec& scene = world->scene_;
 
-  // the MJCF without <deformable>, handed to MuJoCo from memory under a name
-  // in the scene's own folder, so that relative includes and assets resolve
-  // (MuJoCo 2.2.2 matches VFS names by basename: pick one nothing else uses)
-  std::filesystem::path directory = std::filesystem::absolute(scene_path).parent_path();
-  const std::string vfs_name = "tetcosim-scene-" + std::to_string(::getpid()) + "-" +
-                               std::to_string(reinterpret_cast<std::uintptr_t>(world.get())) +
-                               ".xml";
-  auto vfs = std::make_unique<mjVFS>();  // about 2 MB: on the heap
-  mj_defaultVFS(vfs.get());
-  if (mj_makeEmptyFileVFS(vfs.get(), vfs_name.c_str(), static_cast<int>(scene.mjcf.size())) != 0) {
-    ThrowAt(scene_path, 0, "could not create the in-memory scene file");
-  }
-  std::memcpy(vfs->filedata[vfs->nfile - 1], scene.mjcf.data(), scene.mjcf.size());
-  char error[1000] = "";
-  const std::string load_name = (directory / vfs_name).string();
-  world->model_ = mj_loadXML(load_name.c_str(), vfs.get(), error, sizeof(error));
-  mj_deleteVFS(vfs.get());
-  if (!world->model_) {
-    std::string message = error;
-    // MuJoCo names our in-memory file; the user knows the scene's
-    size_t at = message.find(vfs_name);
-    if (at != std::string::npos)
-      message.replace(at, vfs_name.size(), std::filesystem::path(scene_path).filename().string());
-    ThrowAt(scene_path, 0, "MuJoCo rejected the scene: " + message);
-  }
-  mjModel* m = world->model_;
-  if (options.timestep) m->opt.timestep = *options.timestep;
-  world->data_ = mj_makeData(m);
-  mjData* d = world->data_;
-  mj_forward(m, d);
-
-  // deformables
-  const double dt = m->opt.timestep;
+  // deformables (their meshes come first: the MJCF gets a skin for each)
   const ContactParams& scene_contact = scene.contact;
+  std::string skins;
   for (const TetBodySpec& spec : scene.tetbodies) {
     RawMesh raw;
     try {
@@ -195,8 +189,46 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
         spec.contact.friction.value_or(scene_contact.friction.value_or(0.5)));
     world->damping_.push_back(spec.contact.damping.value_or(scene_contact.damping.value_or(0.5)));
     world->attach_body_.push_back(-1);
+    skins += SkinXml(*body, spec.rgba, "tetcosim_" + spec.name);
     world->bodies_.push_back(std::move(body));
   }
+  std::string mjcf = scene.mjcf;
+  if (!skins.empty()) {
+    size_t close = mjcf.rfind("</mujoco>");
+    if (close == std::string::npos) ThrowAt(scene_path, 0, "the scene has no closing </mujoco>");
+    mjcf.insert(close, "<asset>\n" + skins + "</asset>\n");  // MuJoCo 2.2: skins are assets
+  }
+
+  // the MJCF without <deformable>, handed to MuJoCo from memory under a name
+  // in the scene's own folder, so that relative includes and assets resolve
+  // (MuJoCo 2.2.2 matches VFS names by basename: pick one nothing else uses)
+  std::filesystem::path directory = std::filesystem::absolute(scene_path).parent_path();
+  const std::string vfs_name = "tetcosim-scene-" + std::to_string(::getpid()) + "-" +
+                               std::to_string(reinterpret_cast<std::uintptr_t>(world.get())) +
+                               ".xml";
+  auto vfs = std::make_unique<mjVFS>();  // about 2 MB: on the heap
+  mj_defaultVFS(vfs.get());
+  if (mj_makeEmptyFileVFS(vfs.get(), vfs_name.c_str(), static_cast<int>(mjcf.size())) != 0) {
+    ThrowAt(scene_path, 0, "could not create the in-memory scene file");
+  }
+  std::memcpy(vfs->filedata[vfs->nfile - 1], mjcf.data(), mjcf.size());
+  char error[1000] = "";
+  const std::string load_name = (directory / vfs_name).string();
+  world->model_ = mj_loadXML(load_name.c_str(), vfs.get(), error, sizeof(error));
+  mj_deleteVFS(vfs.get());
+  if (!world->model_) {
+    std::string message = error;
+    // MuJoCo names our in-memory file; the user knows the scene's
+    size_t at = message.find(vfs_name);
+    if (at != std::string::npos)
+      message.replace(at, vfs_name.size(), std::filesystem::path(scene_path).filename().string());
+    ThrowAt(scene_path, 0, "MuJoCo rejected the scene: " + message);
+  }
+  mjModel* m = world->model_;
+  if (options.timestep) m->opt.timestep = *options.timestep;
+  world->data_ = mj_makeData(m);
+  mjData* d = world->data_;
+  mj_forward(m, d);
 
   // rigid proxies
   world->geom_has_proxy_.assign(m->ngeom, 0);
@@ -288,7 +320,6 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
   world->step_settings_.cg_tolerance = scene.solver.tolerance;
   world->step_settings_.cg_max_iterations = scene.solver.max_iterations;
   world->step_settings_.num_threads = options.threads;
-  (void)dt;
   return world;
 }
 

@@ -78,6 +78,7 @@ class World {
   const SceneSpec& scene() const { return scene_; }
 
   const mjModel_* mj_model() const { return model_; }
+  mjModel_* mutable_mj_model() { return model_; }
   mjData_* mj_data() { return data_; }
   const mjData_* mj_data() const { return data_; }
   int BodyId(const std::string& name) const;

@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <set>
 
 #include "mesh/error.h"
 
@@ -209,6 +210,37 @@ TEST(RunCommand, OutputsParse) {
         "'); assert len(m.points) == 125 and len(m.get_cells_type('tetra')) == 384\"";
     EXPECT_EQ(std::system(check.c_str()), 0);
   }
+}
+
+}  // namespace
+}  // namespace tetcosim
+
+#include "mujoco_bridge/renderer.h"
+
+namespace tetcosim {
+namespace {
+
+TEST(Rendering, FrameIsNotBlankAndShowsTheDeformable) {
+  std::unique_ptr<World> world =
+      World::Load(std::string(TETCOSIM_SOURCE_DIR) + "/models/scenes/cube_on_box.xml");
+  world->Step();
+  Renderer renderer(*world, 160, 120, "side");
+  const std::vector<unsigned char> before = renderer.Render();
+  ASSERT_EQ(before.size(), 160u * 120u * 3u);
+  // not blank: many distinct colours
+  std::set<int> colours;
+  for (size_t i = 0; i < before.size(); i += 3)
+    colours.insert(before[i] << 16 | before[i + 1] << 8 | before[i + 2]);
+  EXPECT_GT(colours.size(), 50u);
+  // move only the deformable: the image changes where it was and is
+  world->deformable(0).mutable_positions().col(0).array() += 0.15;
+  const std::vector<unsigned char>& after = renderer.Render();
+  int changed = 0;
+  for (size_t i = 0; i < before.size(); i += 3) {
+    changed += std::abs(before[i] - after[i]) + std::abs(before[i + 1] - after[i + 1]) > 30;
+  }
+  EXPECT_GT(changed, 200) << "pixels that changed when the deformable moved";
+  EXPECT_THROW(Renderer(*world, 100, 100, "no-such-camera"), Error);
 }
 
 }  // namespace
