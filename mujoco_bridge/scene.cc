@@ -5,6 +5,7 @@
 #include <charconv>
 #include <cmath>
 #include <filesystem>
+#include <fstream>
 #include <numbers>
 #include <set>
 #include <sstream>
@@ -199,11 +200,29 @@ class SceneParser {
           ThrowAt(path_, attach.line, "<attach>: no tetbody named '" + attach.tetbody + "'");
         }
       }
-      root->DeleteChild(deformable);
     }
-    tinyxml2::XMLPrinter printer;
-    document.Print(&printer);
-    scene.mjcf = printer.CStr();
+    // the MJCF for MuJoCo: the file's own text with <deformable> blanked out
+    // (newlines kept), so that MuJoCo's line numbers are the file's
+    std::string text = ReadText();
+    if (deformable) {
+      size_t begin = LineStart(text, deformable->GetLineNum());
+      begin = text.find("<deformable", begin);
+      size_t end = text.find("</deformable>", begin);
+      size_t self_closing = text.find("/>", begin);
+      size_t first_close = text.find('>', begin);
+      if (begin == std::string::npos) Fail(deformable, "cannot locate the element in the text");
+      if (self_closing != std::string::npos && self_closing + 1 == first_close) {
+        end = first_close + 1;
+      } else if (end == std::string::npos) {
+        Fail(deformable, "</deformable> is missing");
+      } else {
+        end += std::string("</deformable>").size();
+      }
+      for (size_t i = begin; i < end; ++i) {
+        if (text[i] != '\n') text[i] = ' ';
+      }
+    }
+    scene.mjcf = std::move(text);
     return scene;
   }
 
@@ -293,6 +312,22 @@ class SceneParser {
     if (spec.vertices.empty() && !spec.box && !spec.sphere)
       Fail(e, "choose vertices, box or sphere");
     return spec;
+  }
+
+  std::string ReadText() const {
+    std::ifstream in(path_, std::ios::binary);
+    std::ostringstream content;
+    content << in.rdbuf();
+    return content.str();
+  }
+
+  static size_t LineStart(const std::string& text, long line) {
+    size_t position = 0;
+    for (long l = 1; l < line && position != std::string::npos; ++l) {
+      position = text.find('\n', position);
+      if (position != std::string::npos) ++position;
+    }
+    return position == std::string::npos ? 0 : position;
   }
 
  private:

@@ -228,6 +228,7 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
   if (options.timestep) m->opt.timestep = *options.timestep;
   world->data_ = mj_makeData(m);
   mjData* d = world->data_;
+  if (m->nkey > 0) mj_resetDataKeyframe(m, d, 0);  // the first keyframe is the initial state
   mj_forward(m, d);
 
   // rigid proxies
