@@ -11,5 +11,6 @@ namespace tetcosim::app {
 void AddInfoCommand(CLI::App& app);
 void AddDepthCommand(CLI::App& app);
 void AddRunCommand(CLI::App& app);
+void AddCheckCommand(CLI::App& app);
 
 }  // namespace tetcosim::app

@@ -6,6 +6,7 @@
 #include "apps/commands.h"
 #include "mesh/mesh_io.h"
 #include "mesh/quality.h"
+#include "mujoco_bridge/world.h"
 
 namespace tetcosim::app {
 namespace {
@@ -15,7 +16,53 @@ struct InfoOptions {
   bool json = false;
 };
 
+bool IsScene(const std::string& file) {
+  return file.size() > 4 && file.compare(file.size() - 4, 4, ".xml") == 0;
+}
+
+// a scene: what it holds, after loading it completely (MuJoCo included)
+void RunSceneInfo(const InfoOptions& options) {
+  std::unique_ptr<World> world = World::Load(options.file);
+  const SceneSpec& scene = world->scene();
+  nlohmann::ordered_json out;
+  out["scene"] = options.file;
+  out["timestep"] = world->timestep();
+  out["method"] = DepthMethodName(scene.method);
+  out["rigid_bodies"] = world->num_rigid_bodies() - 1;
+  out["proxies"] = world->num_proxies();
+  out["attachments"] = scene.attachments.size();
+  out["deformables"] = nlohmann::json::array();
+  for (int i = 0; i < world->num_deformables(); ++i) {
+    const DeformableBody& body = world->deformable(i);
+    out["deformables"].push_back({{"name", body.name()},
+                                  {"vertices", body.num_vertices()},
+                                  {"tetrahedra", body.mesh().num_tets()},
+                                  {"mass", body.model().total_mass()},
+                                  {"young", body.model().material().young},
+                                  {"pinned", body.pinned_vertices().size()}});
+  }
+  if (options.json) {
+    std::printf("%s\n", out.dump(2).c_str());
+    return;
+  }
+  std::printf("scene        %s\n", options.file.c_str());
+  std::printf("timestep     %g s, method %s\n", world->timestep(), DepthMethodName(scene.method));
+  std::printf("MuJoCo       %d bodies, %d with tetrahedral proxies\n",
+              world->num_rigid_bodies() - 1, world->num_proxies());
+  for (int i = 0; i < world->num_deformables(); ++i) {
+    const DeformableBody& body = world->deformable(i);
+    std::printf("tetbody      %s: %d vertices, %d tetrahedra, %.4g kg, E = %g Pa, %zu pinned\n",
+                body.name().c_str(), body.num_vertices(), body.mesh().num_tets(),
+                body.model().total_mass(), body.model().material().young,
+                body.pinned_vertices().size());
+  }
+}
+
 void RunInfo(const InfoOptions& options) {
+  if (IsScene(options.file)) {
+    RunSceneInfo(options);
+    return;
+  }
   TetMesh mesh = LoadMesh(options.file);
   for (const std::string& warning : mesh.warnings()) {
     std::fprintf(stderr, "tetcosim: warning: %s: %s\n", mesh.source().c_str(), warning.c_str());
@@ -63,10 +110,22 @@ void RunInfo(const InfoOptions& options) {
 
 }  // namespace
 
+void AddCheckCommand(CLI::App& app) {
+  auto file = std::make_shared<std::string>();
+  CLI::App* check =
+      app.add_subcommand("check", "Validate a scene (MJCF with <deformable>) without running it");
+  check->add_option("scene", *file, "Scene file")->required();
+  check->callback([file] {
+    std::unique_ptr<World> world = World::Load(*file);
+    std::printf("%s: ok (%d deformables, %d MuJoCo bodies)\n", file->c_str(),
+                world->num_deformables(), world->num_rigid_bodies() - 1);
+  });
+}
+
 void AddInfoCommand(CLI::App& app) {
   auto options = std::make_shared<InfoOptions>();
   CLI::App* info = app.add_subcommand(
-      "info", "Print counts, volume, bounding box and element quality of a tetrahedral mesh");
+      "info", "Summarise a tetrahedral mesh (counts, volume, bounds, quality) or a scene (.xml)");
   info->add_option("file", options->file,
                    "Mesh file (.msh, .node/.ele, .vtk) or shape spec such as "
                    "sphere:size=0.1:res=1")

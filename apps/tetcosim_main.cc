@@ -18,6 +18,7 @@ int main(int argc, char** argv) {
   tetcosim::app::AddInfoCommand(app);
   tetcosim::app::AddDepthCommand(app);
   tetcosim::app::AddRunCommand(app);
+  tetcosim::app::AddCheckCommand(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
