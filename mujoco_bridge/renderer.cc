@@ -20,6 +20,16 @@ struct Renderer::State {
   mjrContext render;
   bool scene_made = false;
   bool render_made = false;
+
+  // releases whatever was made, also when the constructor throws half way
+  ~State() {
+    if (render_made) mjr_freeContext(&render);
+    if (scene_made) mjv_freeScene(&scene);
+    if (context) {
+      OSMesaMakeCurrent(nullptr, nullptr, 0, 0, 0);
+      OSMesaDestroyContext(context);
+    }
+  }
 };
 
 Renderer::Renderer(World& world, int width, int height, const std::string& camera)
@@ -29,6 +39,10 @@ Renderer::Renderer(World& world, int width, int height, const std::string& camer
                 " is outside 16..8192");
   }
   mjModel* m = world.mutable_mj_model();
+  const int camera_id = camera.empty() ? -1 : mj_name2id(m, mjOBJ_CAMERA, camera.c_str());
+  if (!camera.empty() && camera_id < 0) {
+    throw Error("no camera named '" + camera + "' in " + world.scene().path);
+  }
   // the offscreen buffer must hold the image
   m->vis.global.offwidth = std::max(m->vis.global.offwidth, width);
   m->vis.global.offheight = std::max(m->vis.global.offheight, height);
@@ -53,19 +67,13 @@ Renderer::Renderer(World& world, int width, int height, const std::string& camer
   if (camera.empty()) {
     mjv_defaultFreeCamera(m, &state_->camera);
   } else {
-    int id = mj_name2id(m, mjOBJ_CAMERA, camera.c_str());
-    if (id < 0) throw Error("no camera named '" + camera + "' in " + world.scene().path);
     state_->camera.type = mjCAMERA_FIXED;
-    state_->camera.fixedcamid = id;
+    state_->camera.fixedcamid = camera_id;
   }
   rgb_.resize(static_cast<size_t>(width) * height * 3);
 }
 
-Renderer::~Renderer() {
-  if (state_->render_made) mjr_freeContext(&state_->render);
-  if (state_->scene_made) mjv_freeScene(&state_->scene);
-  if (state_->context) OSMesaDestroyContext(state_->context);
-}
+Renderer::~Renderer() = default;
 
 const std::vector<unsigned char>& Renderer::Render() {
   mjModel* m = world_.mutable_mj_model();

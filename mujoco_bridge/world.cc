@@ -335,6 +335,13 @@ int World::BodyId(const std::string& name) const {
   return mj_name2id(model_, mjOBJ_BODY, name.c_str());
 }
 
+double* World::controls() {
+  return data_->ctrl;
+}
+int World::num_controls() const {
+  return model_->nu;
+}
+
 int World::num_rigid_bodies() const {
   return model_->nbody;
 }

@@ -79,6 +79,9 @@ class World {
 
   const mjModel_* mj_model() const { return model_; }
   mjModel_* mutable_mj_model() { return model_; }
+  // MuJoCo's ctrl (nu values), for controllers.
+  double* controls();
+  int num_controls() const;
   mjData_* mj_data() { return data_; }
   const mjData_* mj_data() const { return data_; }
   int BodyId(const std::string& name) const;
