@@ -100,12 +100,8 @@ TEST(SceneLoading, BadScenesNameTheLine) {
   EXPECT_NE(ErrorOf((dir.path() / "none.xml").string()).find("cannot open"), std::string::npos);
 }
 
-// zero gravity: a soft ball thrown at a free rigid box (with a tetrahedral
-// proxy): the total linear momentum of deformable vertices and MuJoCo bodies
-// is conserved through the impact
-TEST(Coupling, MomentumIsConservedThroughARigidImpact) {
-  TempDir dir;
-  std::string path = dir.Write("impact.xml", R"(<mujoco>
+// zero gravity: a soft ball thrown at a free rigid box with a tetrahedral proxy
+const char* const kImpactScene = R"(<mujoco>
   <option timestep="0.001" gravity="0 0 0"/>
   <worldbody>
     <body name="box" pos="0.2 0 0"><freejoint/><geom name="box" type="box" size="0.05 0.05 0.05" mass="0.5"/></body>
@@ -114,7 +110,14 @@ TEST(Coupling, MomentumIsConservedThroughARigidImpact) {
     <rigidtet body="box" geom="box" resolution="4"/>
     <tetbody name="ball" shape="sphere" size="0.05" resolution="2" pos="0 0.01 0" vel="2 0 0" young="1e5"/>
   </deformable>
-</mujoco>)");
+</mujoco>)";
+
+// zero gravity: a soft ball thrown at a free rigid box (with a tetrahedral
+// proxy): the total linear momentum of deformable vertices and MuJoCo bodies
+// is conserved through the impact
+TEST(Coupling, MomentumIsConservedThroughARigidImpact) {
+  TempDir dir;
+  std::string path = dir.Write("impact.xml", kImpactScene);
   std::unique_ptr<World> world = World::Load(path);
   const Eigen::Vector3d p0 = world->LinearMomentum();
   int contact_steps = 0;
@@ -134,16 +137,7 @@ TEST(Coupling, MomentumIsConservedThroughARigidImpact) {
 // come and go: the total momentum grows by exactly F t
 TEST(Coupling, UserAppliedForcePersistsThroughContacts) {
   TempDir dir;
-  std::string path = dir.Write("push.xml", R"(<mujoco>
-  <option timestep="0.001" gravity="0 0 0"/>
-  <worldbody>
-    <body name="box" pos="0.2 0 0"><freejoint/><geom name="box" type="box" size="0.05 0.05 0.05" mass="0.5"/></body>
-  </worldbody>
-  <deformable>
-    <rigidtet body="box" geom="box" resolution="4"/>
-    <tetbody name="ball" shape="sphere" size="0.05" resolution="2" pos="0 0.01 0" vel="2 0 0" young="1e5"/>
-  </deformable>
-</mujoco>)");
+  std::string path = dir.Write("push.xml", kImpactScene);
   std::unique_ptr<World> world = World::Load(path);
   const int box = world->BodyId("box");
   world->mj_data()->xfrc_applied[6 * box + 1] = 0.3;  // 0.3 N along +y, set once
