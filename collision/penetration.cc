@@ -25,6 +25,10 @@ constexpr long kMaxTriangleCells = 64;
 // Tetrahedra whose bounding box covers more cells than this test candidate
 // vertices directly instead of cell by cell.
 constexpr long kMaxTetCells = 512;
+// Objects with at most this many surface triangles (the paper's 20-tet
+// spheres) are not hashed: a query tests their few triangles directly,
+// which is cheaper than walking the cells of a segment or a search shell.
+constexpr int kSmallSurface = 48;
 
 long CellCount(const Eigen::Vector3i& lo, const Eigen::Vector3i& hi) {
   long count = 1;
@@ -292,6 +296,9 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
   large_triangles_.clear();
   object_cell_lo_.resize(num_objects);
   object_cell_hi_.resize(num_objects);
+  object_small_.assign(num_objects, 0);
+  object_entry_begin_.assign(num_objects, 0);
+  object_entry_end_.assign(num_objects, 0);
   for (int o = 0; o < num_objects; ++o) {
     if (!object_penetrated_[o]) continue;
     const Positions& x = *objects[o].positions;
@@ -300,12 +307,20 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
     object_cell_lo_[o] = triangle_hash_.CellOf(object_lo_[o]);
     object_cell_hi_[o] = triangle_hash_.CellOf(object_hi_[o]);
     object_fully_hashed_[o] = full;
+    object_small_[o] = surface.rows() <= kSmallSurface;
+    object_entry_begin_[o] = static_cast<int>(triangles_.size());
+    if (object_small_[o]) object_fully_hashed_[o] = 1;
     for (int f = 0; f < surface.rows(); ++f) {
       Eigen::Vector3d a = x.row(surface(f, 0)), b = x.row(surface(f, 1)), c = x.row(surface(f, 2));
       Eigen::Vector3d lo = a.cwiseMin(b).cwiseMin(c);
       Eigen::Vector3d hi = a.cwiseMax(b).cwiseMax(c);
-      if (full || OverlapsPartner(o, lo, hi)) InsertTriangle(o, f, lo, hi);
+      if (object_small_[o]) {
+        InsertTriangle(o, f, lo, hi, /*grid=*/false);
+      } else if (full || OverlapsPartner(o, lo, hi)) {
+        InsertTriangle(o, f, lo, hi, /*grid=*/true);
+      }
     }
+    object_entry_end_[o] = static_cast<int>(triangles_.size());
   }
   timings_.hash += SecondsSince(start);
 }
@@ -319,12 +334,12 @@ void PenetrationSolver::HashRemainingTriangles(std::span<const CollisionObject> 
     Eigen::Vector3d a = x.row(surface(f, 0)), c1 = x.row(surface(f, 1)), c2 = x.row(surface(f, 2));
     Eigen::Vector3d lo = a.cwiseMin(c1).cwiseMin(c2);
     Eigen::Vector3d hi = a.cwiseMax(c1).cwiseMax(c2);
-    if (!OverlapsPartner(b, lo, hi)) InsertTriangle(b, f, lo, hi);
+    if (!OverlapsPartner(b, lo, hi)) InsertTriangle(b, f, lo, hi, /*grid=*/true);
   }
 }
 
 void PenetrationSolver::InsertTriangle(int object, int f, const Eigen::Vector3d& lo,
-                                       const Eigen::Vector3d& hi) {
+                                       const Eigen::Vector3d& hi, bool grid) {
   Eigen::Vector3i cell_lo = triangle_hash_.CellOf(lo);
   Eigen::Vector3i cell_hi = triangle_hash_.CellOf(hi);
   int entry = static_cast<int>(triangles_.size());
@@ -333,6 +348,7 @@ void PenetrationSolver::InsertTriangle(int object, int f, const Eigen::Vector3d&
   triangle_hi_.push_back(cell_hi);
   triangle_box_lo_.push_back(lo);
   triangle_box_hi_.push_back(hi);
+  if (!grid) return;
   if (CellCount(cell_lo, cell_hi) > kMaxTriangleCells) {
     large_triangles_.push_back(entry);
     return;
@@ -413,6 +429,9 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
           best_v = w;
         }
       };
+      if (object_small_[b]) {
+        for (int entry = object_entry_begin_[b]; entry < object_entry_end_[b]; ++entry) test(entry);
+      }
       for (int entry : large_triangles_) test(entry);
       Eigen::Vector3i lo = triangle_hash_.CellOf(segment_lo);
       Eigen::Vector3i hi = triangle_hash_.CellOf(segment_hi);
@@ -613,6 +632,10 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
       closest = c;
     }
   };
+  if (object_small_[b]) {
+    for (int entry = object_entry_begin_[b]; entry < object_entry_end_[b]; ++entry) test(entry);
+    return std::isfinite(best);
+  }
   for (int entry : large_triangles_) test(entry);
   // search cubes of cells of growing radius k around p's cell: every point
   // within k cells of p lies in the cube, so the search may stop as soon as

@@ -152,7 +152,9 @@ class PenetrationSolver {
   // adds the triangles of object b that HashSurfaces left out (for closest
   // features, which may lie outside the region where objects overlap)
   void HashRemainingTriangles(std::span<const CollisionObject> objects, int b);
-  void InsertTriangle(int object, int f, const Eigen::Vector3d& lo, const Eigen::Vector3d& hi);
+  // grid = false: kept in the entry list only (objects with small surfaces)
+  void InsertTriangle(int object, int f, const Eigen::Vector3d& lo, const Eigen::Vector3d& hi,
+                      bool grid);
   // true if the box [lo, hi] overlaps the bounding box of an object that
   // can collide with object b
   bool OverlapsPartner(int b, const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) const;
@@ -197,6 +199,8 @@ class PenetrationSolver {
   std::vector<int> large_triangles_;                                // entries too large to hash
   std::vector<char> object_penetrated_;
   std::vector<char> object_fully_hashed_;
+  std::vector<char> object_small_;  // #objects: surface tested directly, not hashed
+  std::vector<int> object_entry_begin_, object_entry_end_;        // #objects: its triangle entries
   std::vector<Eigen::Vector3i> object_cell_lo_, object_cell_hi_;  // #objects: bounding box in cells
 
   std::vector<int> crossing_offset_;  // #hits + 1: slots for the hit's neighbours
