@@ -50,6 +50,11 @@ TEST(SceneLoading, IncludesAndRelativeFilesResolveFromAnotherWorkingDirectory) {
   EXPECT_EQ(world->num_deformables(), 1);
   EXPECT_EQ(world->num_proxies(), 1);
   EXPECT_GE(world->BodyId("table"), 1);
+  // meshdir assets too
+  std::filesystem::current_path(std::filesystem::temp_directory_path());
+  std::unique_ptr<World> with_mesh = World::Load(kData + "/scenes/with_meshdir.xml");
+  std::filesystem::current_path(cwd);
+  EXPECT_GE(with_mesh->BodyId("wedge"), 1);
 }
 
 TEST(SceneLoading, BadScenesNameTheLine) {
