@@ -105,6 +105,7 @@ void RunRollout(const RunOptions& options) {
   std::string message;
   double sum_ms[4] = {0, 0, 0, 0};  // collision, deformable, mujoco, total
   long sum_points = 0;
+  long sum_iterations = 0;
   int max_points = 0;
   double max_depth = 0.0;
   long done = 0;
@@ -128,6 +129,7 @@ void RunRollout(const RunOptions& options) {
     sum_ms[2] += metrics.mujoco_ms;
     sum_ms[3] += metrics.total_ms;
     sum_points += metrics.colliding_points;
+    sum_iterations += metrics.solver_iterations;
     max_points = std::max(max_points, metrics.colliding_points);
     max_depth = std::max(max_depth, metrics.max_depth);
     Eigen::Vector3d p = world->LinearMomentum();
@@ -196,6 +198,7 @@ void RunRollout(const RunOptions& options) {
                             {"deformable", sum_ms[1] / n},
                             {"mujoco", sum_ms[2] / n},
                             {"total", sum_ms[3] / n}};
+  summary["mean_solver_iterations"] = static_cast<double>(sum_iterations) / n;
   summary["contacts"] = {{"max_colliding_points", max_points},
                          {"mean_colliding_points", static_cast<double>(sum_points) / n},
                          {"us_per_colliding_point",

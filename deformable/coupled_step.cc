@@ -39,8 +39,10 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   for (int k = 0; k < num_bodies; ++k) offset[k + 1] = offset[k] + 3 * bodies[k]->num_vertices();
   const int n = offset[num_bodies];
 
-  // bodies' own systems and current velocities
-  Eigen::VectorXd v(n), b(n), diagonal(n);
+  // bodies' own systems and current velocities; the 3 x 3 diagonal blocks of
+  // the system, per vertex, for a block-Jacobi preconditioner
+  Eigen::VectorXd v(n), b(n);
+  std::vector<Eigen::Matrix3d> blocks(static_cast<size_t>(n / 3));
   std::vector<char> pinned(n, 0);
   Eigen::VectorXd delta(n);
   for (int k = 0; k < num_bodies; ++k) {
@@ -49,7 +51,16 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     const int size = 3 * body.num_vertices();
     v.segment(offset[k], size) = Eigen::Map<const Eigen::VectorXd>(body.velocities().data(), size);
     b.segment(offset[k], size) = body.system_rhs();
-    diagonal.segment(offset[k], size) = body.system_matrix().diagonal();
+    const double* values = body.system_matrix().valuePtr();
+    const std::vector<int>& row_start = body.model().row_start();
+    for (int vertex = 0; vertex < body.num_vertices(); ++vertex) {
+      Eigen::Matrix3d& block = blocks[static_cast<size_t>(offset[k] / 3 + vertex)];
+      for (int r = 0; r < 3; ++r) {
+        const double* row =
+            values + row_start[3 * vertex + r] + body.model().diagonal_slot()[vertex];
+        for (int c = 0; c < 3; ++c) block(r, c) = row[c];
+      }
+    }
     const Eigen::VectorXd& last = body.last_velocity_change();
     delta.segment(offset[k], size) = last.size() == size ? last : Eigen::VectorXd::Zero(size);
     for (size_t i = 0; i < body.pinned_vertices().size(); ++i) {
@@ -83,11 +94,11 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
         dt * (linear[c].force - dt * linear[c].stiffness * linear[c].rigid_velocity +
               linear[c].damping * coupling.Jv(v));
     coupling.AddJt(rhs, b);
-    if (coupling.dof_a >= 0) diagonal.segment<3>(coupling.dof_a) += coupling.gain.diagonal();
+    if (coupling.dof_a >= 0) blocks[static_cast<size_t>(coupling.dof_a / 3)] += coupling.gain;
     for (int i = 0; i < 4; ++i) {
       if (coupling.dof_b[i] >= 0) {
-        diagonal.segment<3>(coupling.dof_b[i]) +=
-            coupling.w[i] * coupling.w[i] * coupling.gain.diagonal();
+        blocks[static_cast<size_t>(coupling.dof_b[i] / 3)] +=
+            coupling.w[i] * coupling.w[i] * coupling.gain;
       }
     }
   }
@@ -107,31 +118,43 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     }
   };
 
-  // filtered, Jacobi-preconditioned CG on A dv = b - A v
-  Eigen::VectorXd Av(n), r(n), z(n), p(n), q(n);
+  // filtered, block-Jacobi-preconditioned CG on A dv = b - A v; A dv is
+  // tracked alongside dv, so that the final residual needs no extra product
+  for (Eigen::Matrix3d& block : blocks) {
+    // symmetric positive definite (mass + PSD terms): invert directly
+    block = block.inverse().eval();
+  }
+  auto precondition = [&](const Eigen::VectorXd& r, Eigen::VectorXd& z) {
+    for (size_t i = 0; i < blocks.size(); ++i)
+      z.segment<3>(3 * static_cast<Eigen::Index>(i)) =
+          blocks[i] * r.segment<3>(3 * static_cast<Eigen::Index>(i));
+  };
+  Eigen::VectorXd Av(n), Adelta(n), r(n), z(n), p(n), q(n);
   multiply(v, Av);
   Eigen::VectorXd rhs = b - Av;
   filter(rhs);
   const double rhs_norm = rhs.norm();
-  multiply(delta, q);
-  r = b - Av - q;
+  multiply(delta, Adelta);
+  r = b - Av - Adelta;
   filter(r);
-  Eigen::VectorXd inverse_diagonal = diagonal.cwiseInverse();
-  z = inverse_diagonal.cwiseProduct(r);
+  precondition(r, z);
+  filter(z);
   p = z;
   double rz = r.dot(z);
   CoupledStepReport report;
   const double threshold = settings.cg_tolerance * rhs_norm;
   int iteration = 0;
   while (r.norm() > threshold && iteration < settings.cg_max_iterations) {
-    multiply(p, q);
-    filter(q);
-    const double pq = p.dot(q);
-    if (!(pq > 0.0)) break;  // not positive definite along p (or NaN): stop
+    multiply(p, q);              // p is zero on pinned DoFs
+    const double pq = p.dot(q);  // = p^T A p (filtering q would not change it)
+    if (!(pq > 0.0)) break;      // not positive definite along p (or NaN): stop
     const double alpha = rz / pq;
     delta += alpha * p;
+    Adelta += alpha * q;
+    filter(q);
     r -= alpha * q;
-    z = inverse_diagonal.cwiseProduct(r);
+    precondition(r, z);
+    filter(z);
     const double rz_next = r.dot(z);
     p = z + (rz_next / rz) * p;
     rz = rz_next;
@@ -149,9 +172,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
                         dt * linear[c].stiffness * (Jv_new + linear[c].rigid_velocity) -
                         linear[c].damping * (Jv_new - coupling.Jv(v));
   }
-  Eigen::VectorXd residual(n);
-  multiply(v_new, residual);
-  residual -= b;
+  const Eigen::VectorXd residual = Av + Adelta - b;  // A v+ - b
   for (int k = 0; k < num_bodies; ++k) {
     const int size = offset[k + 1] - offset[k];
     StepReport body_report = bodies[k]->FinishStep(v_new.segment(offset[k], size),

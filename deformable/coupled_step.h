@@ -11,7 +11,7 @@
 // giving
 //   [A_bodies + sum_c J_c^T (dt^2 K_c + dt D_c) J_c] v+
 //       = b_bodies + dt sum_c J_c^T (f_c - dt K_c c_c + D_c J_c v).
-// Solved for the velocity change by Jacobi-preconditioned conjugate
+// Solved for the velocity change by block-Jacobi-preconditioned conjugate
 // gradients, filtered on pinned degrees of freedom (Baraff and Witkin 1998),
 // warm-started from each body's last change. After the step, every
 // contact's `force` is the force actually integrated (what a rigid side must
