@@ -57,34 +57,6 @@ ContactLinearization LinearizeContact(std::span<DeformableBody* const> bodies,
   return out;
 }
 
-void ApplyContacts(std::span<DeformableBody* const> bodies, std::span<ContactPoint> contacts,
-                   const ContactSettings& settings) {
-  for (ContactPoint& contact : contacts) {
-    const ContactLinearization l = LinearizeContact(bodies, contact, settings);
-    contact.force = l.force;
-    // linearised about the other side's motion: A's depth stays constant if
-    // A moves with B's point (u = v_B); B's vertex i (weight w) holds its
-    // share if it keeps its velocity and A keeps A's
-    if (contact.body_a >= 0) {
-      const Eigen::Vector3d v_a =
-          bodies[contact.body_a]->velocities().row(contact.vertex_a).transpose();
-      bodies[contact.body_a]->AddContactLoad(contact.vertex_a, l.force, l.stiffness, l.damping,
-                                             l.stiffness * (v_a - l.relative_velocity));
-    }
-    if (contact.body_b >= 0) {
-      DeformableBody& b = *bodies[contact.body_b];
-      for (int i = 0; i < 4; ++i) {
-        const double w = contact.barycentric_b[i];
-        if (w == 0.0) continue;
-        const int vertex = b.mesh().tets()(contact.tet_b, i);
-        const Eigen::Vector3d ku = w * w * (l.stiffness * b.velocities().row(vertex).transpose()) +
-                                   w * (l.stiffness * l.relative_velocity);
-        b.AddContactLoad(vertex, -w * l.force, w * w * l.stiffness, w * w * l.damping, ku);
-      }
-    }
-  }
-}
-
 void AddHalfSpaceContacts(int index, const DeformableBody& body, const Eigen::Vector3d& normal,
                           double offset, double kappa, double friction,
                           std::vector<ContactPoint>& contacts) {

@@ -10,8 +10,8 @@
 // containing tetrahedron, or a rigid body's point velocity) and m the
 // reduced mass of the pair. On a deformable B the reaction is spread over
 // the containing tetrahedron's vertices by barycentric weights w_i.
-// Derivatives for the implicit step (positive semi-definite, A's vertex;
-// B's vertices get them scaled by w_i^2):
+// Derivatives for the implicit step (positive semi-definite, with respect to
+// the relative position and velocity; coupled_step.h integrates them):
 //   stiffness  -df/dx = k r r^T
 //   damping    -df/dv = c r r^T [approaching] + mu f_n / sqrt(|v_t|^2 + v_s^2) (I - r r^T)
 
@@ -71,11 +71,6 @@ ContactLinearization LinearizeContact(std::span<DeformableBody* const> bodies,
 // d = rho g H L / (10 E) (0.1 mm for 10 cm of E = 1e5 Pa). The time step does
 // not enter: contact is integrated implicitly and stays stable for any k.
 double DefaultContactPressureStiffness(const FemModel& model);
-
-// Computes every contact's force and adds it, with its derivatives, to the
-// deformable bodies involved (bodies[i] for body index i).
-void ApplyContacts(std::span<DeformableBody* const> bodies, std::span<ContactPoint> contacts,
-                   const ContactSettings& settings);
 
 // Contacts of body `index` with the static half-space n . x <= offset (n
 // unit, pointing out of the solid): one per vertex below the plane, with

@@ -14,11 +14,6 @@ DeformableBody::DeformableBody(std::shared_ptr<const FemModel> model, std::strin
   x_ = model_->mesh().positions();
   v_.setZero(n, 3);
   applied_.setZero(n, 3);
-  contact_force_.setZero(n, 3);
-  contact_ku_.setZero(n, 3);
-  contact_stiffness_.assign(n, Eigen::Matrix3d::Zero());
-  contact_damping_.assign(n, Eigen::Matrix3d::Zero());
-  is_loaded_.assign(n, 0);
   rotations_.assign(model_->num_tets(), Eigen::Quaterniond::Identity());
   // the system matrix on the model's pattern (values refilled every step)
   const std::vector<int>& row_start = model_->row_start();
@@ -75,22 +70,9 @@ void DeformableBody::PinToFrame(const std::vector<int>& vertices, const Eigen::I
   }
 }
 
-void DeformableBody::AddContactLoad(int vertex, const Eigen::Vector3d& force,
-                                    const Eigen::Matrix3d& stiffness,
-                                    const Eigen::Matrix3d& damping,
-                                    const Eigen::Vector3d& stiffness_times_velocity) {
-  contact_force_.row(vertex) += force.transpose();
-  contact_ku_.row(vertex) += stiffness_times_velocity.transpose();
-  contact_stiffness_[vertex] += stiffness;
-  contact_damping_[vertex] += damping;
-  if (!is_loaded_[vertex]) {
-    is_loaded_[vertex] = 1;
-    loaded_.push_back(vertex);
-  }
-}
-
-// A = (1 + dt alpha) M + (dt beta + dt^2) K + dt^2 Kc + dt Dc
-// b = M v + dt (f_elastic + M g + f_applied + fc + Dc v + dt Kc u)
+// A = (1 + dt alpha) M + (dt beta + dt^2) K
+// b = M v + dt (f_elastic + M g + f_applied)
+// (contact terms are added by coupled_step.h)
 void DeformableBody::Assemble(const StepSettings& settings) {
   const FemModel& model = *model_;
   const TetMesh& mesh = model.mesh();
@@ -170,17 +152,7 @@ void DeformableBody::Assemble(const StepSettings& settings) {
     for (int r = 0; r < 3; ++r)
       values[row_start[3 * v + r] + model.diagonal_slot()[v] + r] += mass_scale * m;
     b_.segment<3>(3 * v) +=
-        m * v_.row(v).transpose() + dt * (m * settings.gravity + applied_.row(v).transpose() +
-                                          contact_force_.row(v).transpose());
-  }
-  for (int v : loaded_) {
-    const Eigen::Matrix3d block = dt * dt * contact_stiffness_[v] + dt * contact_damping_[v];
-    for (int r = 0; r < 3; ++r) {
-      double* row = values + row_start[3 * v + r] + model.diagonal_slot()[v];
-      for (int k = 0; k < 3; ++k) row[k] += block(r, k);
-    }
-    b_.segment<3>(3 * v) +=
-        dt * contact_damping_[v] * v_.row(v).transpose() + dt * dt * contact_ku_.row(v).transpose();
+        m * v_.row(v).transpose() + dt * (m * settings.gravity + applied_.row(v).transpose());
   }
 }
 
@@ -297,15 +269,6 @@ StepReport DeformableBody::Step(const StepSettings& settings) {
     v_ = v_new;
     x_ += settings.dt * v_;
   }
-  // contact loads are for one step
-  for (int v : loaded_) {
-    contact_force_.row(v).setZero();
-    contact_ku_.row(v).setZero();
-    contact_stiffness_[v].setZero();
-    contact_damping_[v].setZero();
-    is_loaded_[v] = 0;
-  }
-  loaded_.clear();
   return report;
 }
 

@@ -11,7 +11,8 @@
 // with K the co-rotated stiffness (corotational.h), C = alpha M + beta K the
 // Rayleigh damping, f = elastic + gravity + applied forces, and fc, Kc, Dc
 // the contact forces and their (positive semi-definite) stiffness and
-// damping blocks, so that stiff contact is integrated implicitly too.
+// damping, added by coupled_step.h, so that stiff contact is integrated
+// implicitly too.
 // Pinned vertices are held at their targets; the force that holds them is
 // reported.
 
@@ -86,20 +87,9 @@ class DeformableBody {
   // Force the pins applied to each pinned vertex in the last step (N, world).
   const std::vector<Eigen::Vector3d>& pin_forces() const { return pin_forces_; }
 
-  // Contact loads for the next step, cleared by Step(): force on vertex v,
-  // its stiffness K (-df/dx) and damping D (-df/dv) blocks (symmetric
-  // positive semi-definite), and K u where u is the velocity the vertex would
-  // need to keep the force's depth (the other side's velocity at the
-  // contact). The step integrates the force as
-  //   f(v+) = force - K dt (v+ - u) - D (v+ - v)
-  // so that bodies moving together feel no spurious drag.
-  void AddContactLoad(int vertex, const Eigen::Vector3d& force, const Eigen::Matrix3d& stiffness,
-                      const Eigen::Matrix3d& damping,
-                      const Eigen::Vector3d& stiffness_times_velocity);
-  const Positions& contact_forces() const { return contact_force_; }
-
-  // Advances the state by settings.dt. A non-finite result is not committed:
-  // the state stays as it was and the report says kDiverged with the vertex.
+  // Advances this body alone (no contacts; see coupled_step.h for bodies in
+  // contact) by settings.dt. A non-finite result is not committed: the state
+  // stays as it was and the report says kDiverged with the vertex.
   StepReport Step(const StepSettings& settings);
 
   // Pieces of a step, for stepping bodies coupled by contact
@@ -147,12 +137,6 @@ class DeformableBody {
   std::vector<Eigen::Vector3d> pin_target_;  // fixed pins: world; kinematic: in frame T
   Eigen::Isometry3d X_WT_ = Eigen::Isometry3d::Identity();
   std::vector<Eigen::Vector3d> pin_forces_;
-
-  Positions contact_force_;
-  std::vector<Eigen::Matrix3d> contact_stiffness_, contact_damping_;
-  Positions contact_ku_;     // #V x 3: sum of K u
-  std::vector<int> loaded_;  // vertices with contact blocks
-  std::vector<char> is_loaded_;
 
   // the linear system
   SparseMatrix A_;
