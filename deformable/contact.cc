@@ -41,7 +41,7 @@ ContactLinearization LinearizeContact(std::span<DeformableBody* const> bodies,
   // reduced mass (a side without mass is infinitely heavy)
   const double mass = m_a > 0.0 && m_b > 0.0 ? m_a * m_b / (m_a + m_b) : std::max(m_a, m_b);
   const double k = contact.stiffness;
-  const double c = 2.0 * settings.damping_ratio * std::sqrt(k * std::max(mass, 0.0));
+  const double c = 2.0 * contact.damping_ratio * std::sqrt(k * std::max(mass, 0.0));
   out.relative_velocity = v_a - v_b;
   const double v_n = out.relative_velocity.dot(r);
   const bool approaching = v_n < 0.0;

@@ -42,12 +42,12 @@ struct ContactPoint {
   Eigen::Vector3d direction = Eigen::Vector3d::UnitZ();  // unit, out of B
   double stiffness = 0.0;                                // k, N/m
   double friction = 0.0;                                 // mu
+  double damping_ratio = 0.5;  // zeta: fraction of critical damping on approach
   // result: the force on A (newtons, world frame); B receives -force
   Eigen::Vector3d force = Eigen::Vector3d::Zero();
 };
 
 struct ContactSettings {
-  double damping_ratio = 0.5;   // zeta: fraction of critical damping on approach
   double slip_velocity = 1e-3;  // v_s, m/s: friction is smooth below this slip
 };
 

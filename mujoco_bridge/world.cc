@@ -20,8 +20,7 @@ double MillisecondsSince(Clock::time_point start) {
 }
 
 // X_WB of a MuJoCo body from xpos / xmat
-Eigen::Isometry3d BodyPose(const mjModel* m, const mjData* d, int body) {
-  (void)m;
+Eigen::Isometry3d BodyPose(const mjData* d, int body) {
   Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
   X.translation() = Eigen::Map<const Eigen::Vector3d>(d->xpos + 3 * body);
   X.linear() = Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(d->xmat + 9 * body);
@@ -306,7 +305,7 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
     if (vertices.empty())
       ThrowAt(scene_path, spec.line,
               "<attach>: the region holds no vertex of '" + spec.tetbody + "'");
-    deformable.PinToFrame(vertices, BodyPose(m, d, body));
+    deformable.PinToFrame(vertices, BodyPose(d, body));
     world->attach_body_[index] = body;
   }
 
@@ -398,7 +397,7 @@ void World::AddRigidForce(int body, const Eigen::Vector3d& point, const Eigen::V
 
 void World::UpdateProxies() {
   for (auto& proxy : proxies_) {
-    Eigen::Isometry3d X_WB = BodyPose(model_, data_, proxy->body);
+    Eigen::Isometry3d X_WB = BodyPose(data_, proxy->body);
     const Positions& rest = proxy->mesh->positions();
     for (Eigen::Index v = 0; v < rest.rows(); ++v) {
       proxy->positions.row(v) = (X_WB * rest.row(v).transpose()).transpose();
@@ -440,6 +439,7 @@ void World::AddGeomContacts() {
         contact.stiffness = kappa_[i] * deformable.model().contact_areas()[v];
         contact.friction =
             std::max(friction_[i], m->geom_friction[3 * g]);  // MuJoCo combines by max
+        contact.damping_ratio = damping_[i];
         contacts_.push_back(contact);
         contact_rigid_body_.push_back(body);
       }
@@ -447,8 +447,7 @@ void World::AddGeomContacts() {
   }
 }
 
-void World::CollectContacts(double dt) {
-  (void)dt;
+void World::CollectContacts() {
   contacts_.clear();
   contact_rigid_body_.clear();
   objects_.clear();
@@ -469,6 +468,7 @@ void World::CollectContacts(double dt) {
       contact.vertex_a = r.vertex;
       contact.stiffness = kappa_[r.object] * bodies_[r.object]->model().contact_areas()[r.vertex];
       contact.friction = friction_[r.object];
+      contact.damping_ratio = damping_[r.object];
     } else {
       const Proxy& proxy = *proxies_[r.object - num_deformables];
       rigid = proxy.body;
@@ -477,6 +477,7 @@ void World::CollectContacts(double dt) {
       contact.mass_a = model_->body_mass[proxy.body];
       contact.stiffness = kappa_[r.penetrated] * proxy.areas[r.vertex];
       contact.friction = std::max(friction_[r.penetrated], proxy.friction);
+      contact.damping_ratio = damping_[r.penetrated];
     }
     if (r.penetrated < num_deformables) {
       contact.body_b = r.penetrated;
@@ -522,14 +523,14 @@ void World::Step() {
   for (int substep = 0; substep < substeps; ++substep) {
     phase = Clock::now();
     UpdateProxies();
-    CollectContacts(settings.dt);
+    CollectContacts();
     for (size_t i = 0; i < bodies_.size(); ++i) {
       if (attach_body_[i] >= 0) {
         // pins follow the body over this substep (predicted from its velocity)
         int body = attach_body_[i];
         double velocity[6];
         mj_objectVelocity(m, d, mjOBJ_BODY, body, velocity, 0);
-        Eigen::Isometry3d X = BodyPose(m, d, body);
+        Eigen::Isometry3d X = BodyPose(d, body);
         Eigen::Vector3d omega(velocity[0], velocity[1], velocity[2]);
         double t = settings.dt * (substep + 1);
         if (omega.norm() > 0.0)

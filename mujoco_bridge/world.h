@@ -117,7 +117,7 @@ class World {
   struct GeomContact;
 
   void UpdateProxies();
-  void CollectContacts(double dt);
+  void CollectContacts();
   void AddGeomContacts();
   Eigen::Vector3d PointVelocity(int body, const Eigen::Vector3d& p) const;
   void AddRigidForce(int body, const Eigen::Vector3d& point, const Eigen::Vector3d& force);
