@@ -12,5 +12,6 @@ void AddInfoCommand(CLI::App& app);
 void AddDepthCommand(CLI::App& app);
 void AddRunCommand(CLI::App& app);
 void AddCheckCommand(CLI::App& app);
+void AddCompareCommand(CLI::App& app);
 
 }  // namespace tetcosim::app

@@ -14,9 +14,11 @@
 #include <nlohmann/json.hpp>
 
 #include "apps/commands.h"
+#include "apps/metrics_json.h"
 #include "mesh/error.h"
 #include "mesh/mesh_io.h"
 #include "mujoco_bridge/renderer.h"
+#include "mujoco_bridge/rollout_metrics.h"
 #include "mujoco_bridge/world.h"
 
 namespace tetcosim::app {
@@ -74,6 +76,7 @@ void RunRollout(const RunOptions& options) {
   world_options.threads = options.threads;
   if (options.timestep > 0.0) world_options.timestep = options.timestep;
   std::unique_ptr<World> world = World::Load(options.scene, world_options);
+  RolloutMetrics rollout_metrics(*world);
   const double dt = world->timestep();
   const long steps = options.steps > 0 ? options.steps
                      : options.duration > 0.0
@@ -94,7 +97,8 @@ void RunRollout(const RunOptions& options) {
   std::ofstream bodies_csv(out / "bodies.csv");
   if (!steps_csv || !bodies_csv) throw Error(options.out + ": cannot write the output files");
   steps_csv << "step,time,colliding_points,max_depth,mean_depth,kinetic_deformable,kinetic_rigid,"
-               "px,py,pz,wall_ms\n";
+               "px,py,pz,direction_change_max_deg,neighbour_angle_mean_deg,fallback_points,"
+               "unresolved_points,wall_ms\n";
   bodies_csv << "frame,time,body,x,y,z,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz\n";
   const long frame_every = std::max(1L, static_cast<long>(std::llround(1.0 / (options.fps * dt))));
   std::vector<std::pair<double, std::string>> series;
@@ -124,6 +128,7 @@ void RunRollout(const RunOptions& options) {
       break;
     }
     ++done;
+    rollout_metrics.Observe(*world);
     sum_ms[0] += metrics.collision_ms;
     sum_ms[1] += metrics.deformable_ms;
     sum_ms[2] += metrics.mujoco_ms;
@@ -134,10 +139,12 @@ void RunRollout(const RunOptions& options) {
     max_depth = std::max(max_depth, metrics.max_depth);
     Eigen::Vector3d p = world->LinearMomentum();
     char line[512];
-    std::snprintf(line, sizeof(line), "%ld,%.9g,%d,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.6g\n",
-                  step + 1, world->time(), metrics.colliding_points, metrics.max_depth,
-                  metrics.mean_depth, world->DeformableKineticEnergy(), world->RigidKineticEnergy(),
-                  p.x(), p.y(), p.z(), metrics.total_ms);
+    std::snprintf(
+        line, sizeof(line), "%ld,%.9g,%d,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.6g,%.6g,%d,%d,%.6g\n",
+        step + 1, world->time(), metrics.colliding_points, metrics.max_depth, metrics.mean_depth,
+        world->DeformableKineticEnergy(), world->RigidKineticEnergy(), p.x(), p.y(), p.z(),
+        rollout_metrics.step_max_direction_change(), rollout_metrics.step_mean_neighbour_angle(),
+        metrics.fallback_points, metrics.unresolved_points, metrics.total_ms);
     steps_csv << line;
     if (step % frame_every == 0) {
       for (int b = 1; b < world->num_rigid_bodies(); ++b) {
@@ -207,12 +214,20 @@ void RunRollout(const RunOptions& options) {
                          {"final_max_depth", world->metrics().max_depth}};
   summary["final_kinetic_energy"] = {{"deformable", world->DeformableKineticEnergy()},
                                      {"rigid", world->RigidKineticEnergy()}};
+  const RolloutSummary rollout = rollout_metrics.Summarize(*world);
+  summary["metrics"] = MetricsJson(rollout, rollout_metrics.options());
   WriteFileAtomically((out / "summary.json").string(), summary.dump(2) + "\n");
   std::printf("%s: %ld steps, %.3f s simulated in %.2f s wall (%.0f steps/s): %s\n",
               options.scene.c_str(), done, world->time(), wall,
               static_cast<double>(done) / std::max(wall, 1e-9), status.c_str());
   std::printf("  ms per step: collision %.3f, deformable %.3f, mujoco %.3f, total %.3f\n",
               sum_ms[0] / n, sum_ms[1] / n, sum_ms[2] / n, sum_ms[3] / n);
+  std::printf(
+      "  pass-through pairs %d, sticking pairs %d, residual depth max %.3g m, mean %.3g m, "
+      "final kinetic energy %.3g J%s\n",
+      rollout.pass_through_pairs, rollout.sticking_pairs, rollout.residual_max_depth,
+      rollout.residual_mean_depth, rollout.final_kinetic_energy,
+      rollout.at_rest ? " (at rest)" : "");
   std::printf("  wrote %s/summary.json, steps.csv, bodies.csv%s\n", options.out.c_str(),
               options.vtk ? ", vtk/" : "");
   if (options.video && frame > 0) {

@@ -19,6 +19,7 @@ int main(int argc, char** argv) {
   tetcosim::app::AddDepthCommand(app);
   tetcosim::app::AddRunCommand(app);
   tetcosim::app::AddCheckCommand(app);
+  tetcosim::app::AddCompareCommand(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -315,6 +315,8 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
   penetration.method = options.method.value_or(scene.method);
   penetration.num_threads = options.threads;
   world->solver_.set_options(penetration);
+  penetration.method = DepthMethod::kClosest;
+  world->exact_solver_.set_options(penetration);
   world->step_settings_.gravity = Eigen::Map<const Eigen::Vector3d>(m->opt.gravity);
   world->step_settings_.solver = scene.solver.linear_solver;
   world->step_settings_.cg_tolerance = scene.solver.tolerance;
@@ -405,7 +407,8 @@ void World::UpdateProxies() {
   }
 }
 
-void World::AddGeomContacts() {
+void World::ForEachGeomPenetration(
+    const std::function<void(int, int, int, double, const Eigen::Vector3d&)>& visit) const {
   const mjModel* m = model_;
   for (int g = 0; g < m->ngeom; ++g) {
     if (geom_has_proxy_[g]) continue;
@@ -419,7 +422,6 @@ void World::AddGeomContacts() {
     Eigen::Vector3d x_g = Eigen::Map<const Eigen::Vector3d>(data_->geom_xpos + 3 * g);
     Eigen::Matrix3d R_g =
         Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(data_->geom_xmat + 9 * g);
-    const int body = m->geom_bodyid[g];
     for (size_t i = 0; i < bodies_.size(); ++i) {
       const DeformableBody& deformable = *bodies_[i];
       for (int v = 0; v < deformable.num_vertices(); ++v) {
@@ -429,27 +431,34 @@ void World::AddGeomContacts() {
         Eigen::Vector3d normal = Eigen::Vector3d::UnitZ();
         GeomDistance(type, m->geom_size + 3 * g, R_g.transpose() * (p - x_g), distance, normal);
         if (distance >= 0.0) continue;
-        ContactPoint contact;
-        contact.body_a = static_cast<int>(i);
-        contact.vertex_a = v;
-        contact.velocity_b = PointVelocity(body, p);
-        contact.mass_b = body > 0 ? m->body_mass[body] : 0.0;
-        contact.depth = -distance;
-        contact.direction = R_g * normal;
-        contact.stiffness = kappa_[i] * deformable.model().contact_areas()[v];
-        contact.friction =
-            std::max(friction_[i], m->geom_friction[3 * g]);  // MuJoCo combines by max
-        contact.damping_ratio = damping_[i];
-        contacts_.push_back(contact);
-        contact_rigid_body_.push_back(body);
+        visit(static_cast<int>(i), v, g, -distance, R_g * normal);
       }
     }
   }
 }
 
-void World::CollectContacts() {
-  contacts_.clear();
-  contact_rigid_body_.clear();
+void World::AddGeomContacts() {
+  const mjModel* m = model_;
+  ForEachGeomPenetration([&](int i, int v, int g, double depth, const Eigen::Vector3d& direction) {
+    const int body = m->geom_bodyid[g];
+    const DeformableBody& deformable = *bodies_[i];
+    Eigen::Vector3d p = deformable.positions().row(v).transpose();
+    ContactPoint contact;
+    contact.body_a = i;
+    contact.vertex_a = v;
+    contact.velocity_b = PointVelocity(body, p);
+    contact.mass_b = body > 0 ? m->body_mass[body] : 0.0;
+    contact.depth = depth;
+    contact.direction = direction;
+    contact.stiffness = kappa_[i] * deformable.model().contact_areas()[v];
+    contact.friction = std::max(friction_[i], m->geom_friction[3 * g]);  // MuJoCo combines by max
+    contact.damping_ratio = damping_[i];
+    contacts_.push_back(contact);
+    contact_rigid_body_.push_back(body);
+  });
+}
+
+void World::BuildCollisionObjects() {
   objects_.clear();
   for (size_t i = 0; i < bodies_.size(); ++i) {
     objects_.push_back(
@@ -457,6 +466,46 @@ void World::CollectContacts() {
   }
   for (const auto& proxy : proxies_)
     objects_.push_back({proxy->mesh.get(), &proxy->positions, true, false});
+}
+
+int World::ProxyBody(int proxy) const {
+  return proxies_[proxy]->body;
+}
+
+int World::MetricObject(int collision_object) const {
+  const int num_deformables = static_cast<int>(bodies_.size());
+  if (collision_object < num_deformables) return collision_object;
+  return num_deformables + proxies_[collision_object - num_deformables]->body;
+}
+
+std::vector<Interpenetration> World::MeasureInterpenetration() {
+  UpdateProxies();
+  BuildCollisionObjects();
+  std::vector<Interpenetration> points;
+  for (const PenetrationResult& r : exact_solver_.Solve(objects_)) {
+    points.push_back({MetricObject(r.object), MetricObject(r.penetrated), r.depth,
+                      objects_[r.object].positions->row(r.vertex).transpose()});
+  }
+  const int num_deformables = static_cast<int>(bodies_.size());
+  ForEachGeomPenetration([&](int i, int v, int g, double depth, const Eigen::Vector3d&) {
+    points.push_back({i, num_deformables + model_->geom_bodyid[g], depth,
+                      bodies_[i]->positions().row(v).transpose()});
+  });
+  return points;
+}
+
+Eigen::Vector3d World::RigidBodyCenterOfMass(int body) const {
+  return Eigen::Map<const Eigen::Vector3d>(data_->xipos + 3 * body);
+}
+
+bool World::RigidBodyIsStatic(int body) const {
+  return model_->body_weldid[body] == 0;
+}
+
+void World::CollectContacts() {
+  contacts_.clear();
+  contact_rigid_body_.clear();
+  BuildCollisionObjects();
   const int num_deformables = static_cast<int>(bodies_.size());
   for (const PenetrationResult& r : solver_.Solve(objects_)) {
     ContactPoint contact;
@@ -630,19 +679,19 @@ double World::DeformableKineticEnergy() const {
 double World::RigidKineticEnergy() const {
   double energy = 0.0;
   for (int b = 1; b < model_->nbody; ++b) {
-    double velocity[6];
-    mj_objectVelocity(model_, data_, mjOBJ_BODY, b, velocity, 1);  // local frame at xpos
-    Eigen::Vector3d com = Eigen::Map<const Eigen::Vector3d>(data_->xipos + 3 * b);
-    Eigen::Vector3d v = PointVelocity(b, com);
-    // rotational energy with the principal inertia in the inertial frame
+    double velocity[6];  // angular, then linear at xpos, world frame
+    mj_objectVelocity(model_, data_, mjOBJ_BODY, b, velocity, 0);
+    Eigen::Vector3d omega_W(velocity[0], velocity[1], velocity[2]);
+    Eigen::Vector3d p_WBcm = Eigen::Map<const Eigen::Vector3d>(data_->xipos + 3 * b);
+    Eigen::Vector3d p_WBo = Eigen::Map<const Eigen::Vector3d>(data_->xpos + 3 * b);
+    Eigen::Vector3d v_WBcm =
+        Eigen::Vector3d(velocity[3], velocity[4], velocity[5]) + omega_W.cross(p_WBcm - p_WBo);
+    // rotational energy with the principal inertia in the inertial frame I
     Eigen::Matrix3d R_WI =
         Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(data_->ximat + 9 * b);
-    Eigen::Matrix3d R_WB =
-        Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(data_->xmat + 9 * b);
-    Eigen::Vector3d omega_I =
-        R_WI.transpose() * (R_WB * Eigen::Vector3d(velocity[0], velocity[1], velocity[2]));
+    Eigen::Vector3d omega_I = R_WI.transpose() * omega_W;
     Eigen::Vector3d inertia = Eigen::Map<const Eigen::Vector3d>(model_->body_inertia + 3 * b);
-    energy += 0.5 * model_->body_mass[b] * v.squaredNorm() +
+    energy += 0.5 * model_->body_mass[b] * v_WBcm.squaredNorm() +
               0.5 * omega_I.dot(inertia.cwiseProduct(omega_I));
   }
   return energy;

@@ -38,6 +38,16 @@ struct WorldOptions {
   std::optional<double> timestep;  // overrides the MJCF's <option timestep>
 };
 
+// A point of one object inside another, measured exactly on the current
+// state (World::MeasureInterpenetration). Objects are numbered for metrics:
+// deformable i is i, MuJoCo body b is num_deformables() + b.
+struct Interpenetration {
+  int inside = -1;      // the object the point belongs to
+  int penetrated = -1;  // the object it is inside
+  double depth = 0.0;   // m: distance to the penetrated object's surface
+  Eigen::Vector3d point = Eigen::Vector3d::Zero();  // world frame
+};
+
 // Per-step figures (the last Step()).
 struct StepMetrics {
   int colliding_points = 0;  // penetration results + geom contacts
@@ -100,8 +110,28 @@ class World {
   const DeformableBody& deformable(int i) const { return *bodies_[i]; }
   int DeformableIndex(const std::string& name) const;
   const std::vector<ContactPoint>& contacts() const { return contacts_; }
+  // The penetration results of the last step (its start state); they are the
+  // first penetrations().size() entries of contacts(), in the same order;
+  // contacts with primitive geoms follow.
   const std::vector<PenetrationResult>& penetrations() const { return solver_.results(); }
+  // Per entry of contacts(): the MuJoCo body on the rigid side, or -1.
+  const std::vector<int>& contact_rigid_bodies() const { return contact_rigid_body_; }
+  // The collision objects of the last step: deformables 0 .. D-1, then the
+  // proxies; PenetrationResult::object indexes this.
+  const std::vector<CollisionObject>& collision_objects() const { return objects_; }
   int num_proxies() const { return static_cast<int>(proxies_.size()); }
+  int ProxyBody(int proxy) const;
+  // Metrics numbering (see Interpenetration) of a collision object.
+  int MetricObject(int collision_object) const;
+  // Exact interpenetration of the current state, method-independent: for
+  // every point inside another object, its distance to that object's surface
+  // (closest feature on the surface triangles; signed distance for primitive
+  // geoms). Used to judge both depth methods by the same ruler.
+  std::vector<Interpenetration> MeasureInterpenetration();
+  // Centre of mass (xipos) of a MuJoCo body, world frame; and whether the body
+  // is welded to the world (never moves).
+  Eigen::Vector3d RigidBodyCenterOfMass(int body) const;
+  bool RigidBodyIsStatic(int body) const;
 
   // Totals over deformables and MuJoCo bodies (world frame).
   Eigen::Vector3d LinearMomentum() const;
@@ -119,6 +149,11 @@ class World {
   void UpdateProxies();
   void CollectContacts();
   void AddGeomContacts();
+  void BuildCollisionObjects();
+  // calls visit(deformable, vertex, geom, depth, direction out of the geom)
+  // for every deformable vertex inside a primitive geom without a proxy
+  void ForEachGeomPenetration(
+      const std::function<void(int, int, int, double, const Eigen::Vector3d&)>& visit) const;
   Eigen::Vector3d PointVelocity(int body, const Eigen::Vector3d& p) const;
   void AddRigidForce(int body, const Eigen::Vector3d& point, const Eigen::Vector3d& force);
 
@@ -134,6 +169,7 @@ class World {
   std::vector<std::unique_ptr<Proxy>> proxies_;
   std::vector<char> geom_has_proxy_;
   PenetrationSolver solver_;
+  PenetrationSolver exact_solver_;  // closest-feature, for MeasureInterpenetration
   std::vector<CollisionObject> objects_;
   std::vector<ContactPoint> contacts_;
   std::vector<int> contact_rigid_body_;  // per contact: MuJoCo body on the rigid side, or -1

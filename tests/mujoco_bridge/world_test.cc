@@ -9,29 +9,12 @@
 #include <set>
 
 #include "mesh/error.h"
+#include "tests/mujoco_bridge/temp_dir.h"
 
 namespace tetcosim {
 namespace {
 
 const std::string kData = TETCOSIM_TEST_DATA_DIR;
-
-class TempDir {
- public:
-  TempDir()
-      : path_(std::filesystem::temp_directory_path() /
-              ("tetcosim_world_" + std::to_string(::getpid()))) {
-    std::filesystem::create_directories(path_);
-  }
-  ~TempDir() { std::filesystem::remove_all(path_); }
-  std::string Write(const std::string& name, const std::string& text) const {
-    std::ofstream(path_ / name) << text;
-    return (path_ / name).string();
-  }
-  const std::filesystem::path& path() const { return path_; }
-
- private:
-  std::filesystem::path path_;
-};
 
 std::string ErrorOf(const std::string& path) {
   try {

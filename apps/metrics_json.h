@@ -1,0 +1,43 @@
+#pragma once
+
+// RolloutSummary as JSON, shared by `tetcosim run` (summary.json) and
+// `tetcosim compare`.
+
+#include <nlohmann/json.hpp>
+
+#include "mujoco_bridge/rollout_metrics.h"
+
+namespace tetcosim::app {
+
+inline nlohmann::ordered_json MetricsJson(const RolloutSummary& s,
+                                          const RolloutMetricsOptions& options) {
+  nlohmann::ordered_json events = nlohmann::ordered_json::array();
+  for (const PairEvent& e : s.events) {
+    events.push_back(
+        {{"kind", e.kind}, {"a", e.name_a}, {"b", e.name_b}, {"time", e.time}, {"depth", e.depth}});
+  }
+  return {{"pass_through_pairs", s.pass_through_pairs},
+          {"sticking_pairs", s.sticking_pairs},
+          {"events", events},
+          {"residual_max_depth", s.residual_max_depth},
+          {"residual_mean_depth", s.residual_mean_depth},
+          {"residual_points", s.residual_points},
+          {"mean_neighbour_angle_deg", s.mean_neighbour_angle},
+          {"neighbour_pairs", s.neighbour_pairs},
+          {"max_direction_change_deg", s.max_direction_change},
+          {"mean_direction_change_deg", s.mean_direction_change},
+          {"colliding_points", s.colliding_points},
+          {"fallback_points", s.fallback_points},
+          {"unresolved_points", s.unresolved_points},
+          {"max_depth_seen", s.max_depth_seen},
+          {"final_kinetic_energy", s.final_kinetic_energy},
+          {"max_speed", s.max_speed},
+          {"at_rest", s.at_rest},
+          {"collision_us_per_point", s.collision_us_per_point},
+          {"thresholds",
+           {{"pass_through_fraction", options.pass_through_fraction},
+            {"sticking_fraction", options.sticking_fraction},
+            {"rest_speed", options.rest_speed}}}};
+}
+
+}  // namespace tetcosim::app

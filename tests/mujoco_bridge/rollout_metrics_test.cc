@@ -1,0 +1,147 @@
+#include "mujoco_bridge/rollout_metrics.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "mujoco_bridge/scenario.h"
+#include "tests/mujoco_bridge/temp_dir.h"
+
+namespace tetcosim {
+namespace {
+
+constexpr double kDegrees = 180.0 / 3.14159265358979323846;
+
+// two 10 cm cubes on the x axis, zero gravity; `stiffness` is the contact's
+// kappa (Pa/m), tiny to let them pass through each other
+std::string TwoCubes(double gap, double speed, const std::string& stiffness) {
+  char text[1024];
+  std::snprintf(text, sizeof(text), R"(<mujoco>
+  <option timestep="0.002" gravity="0 0 0"/>
+  <deformable>
+    <contact stiffness="%s"/>
+    <tetbody name="a" shape="box" size="0.05 0.05 0.05" resolution="4 4 4" pos="%.6f 0 0"
+             vel="%.6f 0 0" young="1e5"/>
+    <tetbody name="b" shape="box" size="0.05 0.05 0.05" resolution="4 4 4" pos="%.6f 0 0"
+             vel="%.6f 0 0" young="1e5"/>
+  </deformable>
+</mujoco>)",
+                stiffness.c_str(), -0.05 - gap / 2, speed / 2, 0.05 + gap / 2, -speed / 2);
+  return text;
+}
+
+TEST(RolloutMetrics, OverlappingCubesAreStickingByTheExactDepth) {
+  TempDir dir("tetcosim_metrics");
+  // b starts 2 cm inside a, at rest: the deepest point of a inside b is the
+  // middle vertex of a's +x face, 2 cm from b's -x face (its sides are 5 cm
+  // away)
+  Scenario scenario(dir.Write("overlap.xml", TwoCubes(-0.02, 0.0, "1e-6")));
+  RolloutSummary s = scenario.Summarize();
+  EXPECT_NEAR(s.residual_max_depth, 0.02, 1e-12);
+  EXPECT_EQ(s.sticking_pairs, 1);      // 2 cm > 5% of 10 cm
+  EXPECT_EQ(s.pass_through_pairs, 0);  // 2 cm < 30% of 10 cm
+  ASSERT_EQ(s.events.size(), 1u);
+  EXPECT_EQ(s.events[0].kind, "sticking");
+  EXPECT_EQ(s.events[0].name_a, "a");
+  EXPECT_EQ(s.events[0].name_b, "b");
+  // Summarize() does not disturb anything: the same twice
+  RolloutSummary again = scenario.Summarize();
+  EXPECT_EQ(again.residual_max_depth, s.residual_max_depth);
+  EXPECT_EQ(again.events.size(), s.events.size());
+}
+
+TEST(RolloutMetrics, CubesPassingThroughEachOtherAreCaught) {
+  TempDir dir("tetcosim_metrics");
+  // a contact too weak to stop 2 m/s: the cubes cross within 0.15 s
+  Scenario soft(dir.Write("soft.xml", TwoCubes(0.01, 2.0, "1e-3")));
+  ASSERT_TRUE(soft.Run(0.15));
+  RolloutSummary s = soft.Summarize();
+  EXPECT_EQ(s.pass_through_pairs, 1);
+  EXPECT_EQ(s.residual_points, 0) << "already apart again";
+  World& world = soft.world();
+  EXPECT_GT(world.deformable(0).CenterOfMass().x(), world.deformable(1).CenterOfMass().x());
+  // with the automatic contact stiffness they bounce: no pass-through
+  Scenario stiff(dir.Write("stiff.xml", TwoCubes(0.01, 2.0, "0")));
+  ASSERT_TRUE(stiff.Run(0.15));
+  EXPECT_EQ(stiff.Summarize().pass_through_pairs, 0);
+}
+
+TEST(RolloutMetrics, FallingThroughTheFloorIsAPassThrough) {
+  TempDir dir("tetcosim_metrics");
+  const char* scene = R"(<mujoco>
+  <option timestep="0.002" gravity="0 0 0"/>
+  <worldbody><geom name="floor" type="plane" size="1 1 0.1"/></worldbody>
+  <deformable>
+    <contact stiffness="%s"/>
+    <tetbody name="cube" shape="box" size="0.05 0.05 0.05" resolution="3 3 3" pos="0 0 0.052"
+             vel="0 0 -2" young="1e5"/>
+  </deformable>
+</mujoco>)";
+  char text[1024];
+  std::snprintf(text, sizeof(text), scene, "1e-3");
+  Scenario through(dir.Write("through.xml", text));
+  ASSERT_TRUE(through.Run(0.15));
+  RolloutSummary s = through.Summarize();
+  EXPECT_EQ(s.pass_through_pairs, 1);
+  ASSERT_FALSE(s.events.empty());
+  EXPECT_EQ(s.events[0].name_b, "world");
+  std::snprintf(text, sizeof(text), scene, "0");
+  Scenario bounce(dir.Write("bounce.xml", text));
+  ASSERT_TRUE(bounce.Run(0.15));
+  EXPECT_EQ(bounce.Summarize().pass_through_pairs, 0);
+}
+
+// spatial and temporal figures of every step against a brute-force count over
+// all pairs of results
+TEST(RolloutMetrics, DirectionFiguresMatchBruteForce) {
+  for (DepthMethod method : {DepthMethod::kConsistent, DepthMethod::kClosest}) {
+    WorldOptions options;
+    options.method = method;
+    options.timestep = 0.004;
+    Scenario scenario(std::string(TETCOSIM_SOURCE_DIR) + "/models/paper/cubes.xml", options);
+    std::vector<PenetrationResult> previous;
+    double max_change_seen = 0.0;
+    int steps_with_edges = 0;
+    for (int step = 0; step < 20; ++step) {
+      ASSERT_TRUE(scenario.Run(scenario.world().timestep()));
+      const World& world = scenario.world();
+      const std::vector<PenetrationResult>& results = world.penetrations();
+      double sum = 0.0;
+      int count = 0;
+      double max_change = 0.0;
+      for (size_t i = 0; i < results.size(); ++i) {
+        const PenetrationResult& r = results[i];
+        const TetMesh& mesh = *world.collision_objects()[r.object].mesh;
+        for (size_t j = 0; j < results.size(); ++j) {
+          const PenetrationResult& q = results[j];
+          if (q.object != r.object || q.penetrated != r.penetrated || q.vertex <= r.vertex)
+            continue;
+          for (Eigen::Index e = 0; e < mesh.edges().rows(); ++e) {
+            if (mesh.edges()(e, 0) == r.vertex && mesh.edges()(e, 1) == q.vertex) {
+              sum += std::acos(std::clamp(r.direction.dot(q.direction), -1.0, 1.0)) * kDegrees;
+              ++count;
+            }
+          }
+        }
+        for (const PenetrationResult& p : previous) {
+          if (p.object == r.object && p.penetrated == r.penetrated && p.vertex == r.vertex) {
+            max_change =
+                std::max(max_change,
+                         std::acos(std::clamp(r.direction.dot(p.direction), -1.0, 1.0)) * kDegrees);
+          }
+        }
+      }
+      const RolloutMetrics& metrics = scenario.metrics();
+      EXPECT_NEAR(metrics.step_mean_neighbour_angle(), count > 0 ? sum / count : 0.0, 1e-9);
+      EXPECT_NEAR(metrics.step_max_direction_change(), max_change, 1e-9);
+      if (count > 0) ++steps_with_edges;
+      max_change_seen = std::max(max_change_seen, max_change);
+      previous = results;
+    }
+    EXPECT_GT(steps_with_edges, 3) << "the test saw contacts";
+    EXPECT_NEAR(scenario.Summarize().max_direction_change, max_change_seen, 1e-9);
+  }
+}
+
+}  // namespace
+}  // namespace tetcosim
