@@ -179,7 +179,14 @@ TEST(RunCommand, OutputsParse) {
   std::getline(steps, header);
   EXPECT_EQ(header,
             "step,time,colliding_points,max_depth,mean_depth,kinetic_deformable,kinetic_rigid,px,"
-            "py,pz,wall_ms");
+            "py,pz,direction_change_max_deg,neighbour_angle_mean_deg,fallback_points,"
+            "unresolved_points,wall_ms");
+  // the cube lands on the box: contacts, none of them an artifact
+  const nlohmann::json& metrics = summary["metrics"];
+  EXPECT_GT(metrics["colliding_points"].get<long>(), 0);
+  EXPECT_EQ(metrics["pass_through_pairs"], 0);
+  EXPECT_EQ(metrics["sticking_pairs"], 0);
+  EXPECT_LT(metrics["residual_max_depth"].get<double>(), 1e-3);
   int rows = 0;
   while (std::getline(steps, line)) ++rows;
   EXPECT_EQ(rows, 100);
@@ -192,6 +199,36 @@ TEST(RunCommand, OutputsParse) {
         "'); assert len(m.points) == 125 and len(m.get_cells_type('tetra')) == 384\"";
     EXPECT_EQ(std::system(check.c_str()), 0);
   }
+}
+
+TEST(CompareCommand, WritesOneRowPerMethodAndTimestep) {
+  TempDir dir;
+  const std::string out = (dir.path() / "compare").string();
+  std::string command = std::string(TETCOSIM_BINARY) + " compare " + TETCOSIM_SOURCE_DIR +
+                        "/models/paper/cubes.xml --dt 2,4ms --duration 0.02 --no-render --out " +
+                        out + " > /dev/null 2>&1";
+  ASSERT_EQ(std::system(command.c_str()), 0) << command;
+  std::ifstream table(out + "/table.csv");
+  std::string header, line;
+  std::getline(table, header);
+  EXPECT_EQ(header.rfind("method,dt_ms,status,plausible,", 0), 0u) << header;
+  std::vector<std::string> rows;
+  while (std::getline(table, line)) rows.push_back(line.substr(0, line.find(",ok,")));
+  EXPECT_EQ(rows,
+            (std::vector<std::string>{"consistent,2", "closest,2", "consistent,4", "closest,4"}));
+  EXPECT_TRUE(std::filesystem::exists(out + "/table.md"));
+  EXPECT_TRUE(std::filesystem::exists(out + "/runs/closest-4ms/steps.csv"));
+  std::ifstream run_summary(out + "/runs/closest-4ms/summary.json");
+  EXPECT_EQ(nlohmann::json::parse(run_summary)["dt"].get<double>(), 0.004);
+  // a bad time step list is a clear error
+  std::string bad = std::string(TETCOSIM_BINARY) + " compare " + TETCOSIM_SOURCE_DIR +
+                    "/models/paper/cubes.xml --dt 1,fast --out " + out + " 2>&1";
+  FILE* pipe = popen(bad.c_str(), "r");
+  std::string text;
+  char buffer[512];
+  while (fgets(buffer, sizeof(buffer), pipe)) text += buffer;
+  EXPECT_NE(pclose(pipe), 0);
+  EXPECT_NE(text.find("'fast' is not a positive time step"), std::string::npos) << text;
 }
 
 }  // namespace
