@@ -29,6 +29,22 @@ double Thickness(const TetMesh& mesh) {
 
 }  // namespace
 
+double MaxSpeed(const World& world) {
+  double speed = 0.0;
+  for (int i = 0; i < world.num_deformables(); ++i) {
+    const Positions& v = world.deformable(i).velocities();
+    if (v.rows() > 0) speed = std::max(speed, v.rowwise().norm().maxCoeff());
+  }
+  for (int b = 1; b < world.num_rigid_bodies(); ++b) {
+    if (world.RigidBodyIsStatic(b)) continue;
+    speed = std::max(speed, (world.RigidBodyLinearVelocity(b) +
+                             world.RigidBodyAngularVelocity(b).cross(
+                                 world.RigidBodyCenterOfMass(b) - world.RigidBodyPosition(b)))
+                                .norm());
+  }
+  return speed;
+}
+
 RolloutMetrics::RolloutMetrics(const World& world, const RolloutMetricsOptions& options)
     : options_(options), num_deformables_(world.num_deformables()) {
   const int num_objects = num_deformables_ + world.num_rigid_bodies();
@@ -235,14 +251,7 @@ RolloutSummary RolloutMetrics::Summarize(World& world) const {
   s.max_depth_seen = max_depth_;
 
   s.final_kinetic_energy = world.DeformableKineticEnergy() + world.RigidKineticEnergy();
-  for (int i = 0; i < world.num_deformables(); ++i) {
-    const Positions& v = world.deformable(i).velocities();
-    if (v.rows() > 0) s.max_speed = std::max(s.max_speed, v.rowwise().norm().maxCoeff());
-  }
-  for (int b = 1; b < world.num_rigid_bodies(); ++b) {
-    if (world.RigidBodyIsStatic(b)) continue;
-    s.max_speed = std::max(s.max_speed, world.RigidBodyLinearVelocity(b).norm());
-  }
+  s.max_speed = MaxSpeed(world);
   s.at_rest = s.max_speed < options_.rest_speed;
   s.collision_ms = collision_ms_;
   s.collision_us_per_point =

@@ -89,6 +89,9 @@ struct RolloutSummary {
   double collision_us_per_point = 0.0;
 };
 
+// The fastest deformable vertex or moving rigid body centre of mass (m/s).
+double MaxSpeed(const World& world);
+
 class RolloutMetrics {
  public:
   explicit RolloutMetrics(const World& world, const RolloutMetricsOptions& options = {});

@@ -84,5 +84,66 @@ TEST(PaperScenarios, ClosestFeatureCubesStickTogetherAtTheSameTimestep) {
   EXPECT_LT(closest.right_vx - closest.left_vx, 0.05) << "they do not fly apart";
 }
 
+// The spheres are thrown in at up to 5 m/s; at 4 ms a step can carry a coarse
+// sphere past the middle of another.
+constexpr double kSpheresTimestep = 0.004;
+
+RolloutSummary RunSpheres(DepthMethod method) {
+  Scenario scenario(PaperScene("spheres.xml"), With(method, kSpheresTimestep));
+  EXPECT_TRUE(scenario.Run(1.5)) << scenario.message();
+  return scenario.Summarize();
+}
+
+TEST(PaperScenarios, SpheresStackComesToRestWithoutStickingPairs) {
+  RolloutSummary s = RunSpheres(DepthMethod::kConsistent);
+  Print("spheres, consistent, 4 ms", s);
+  EXPECT_EQ(s.sticking_pairs, 0);
+  EXPECT_EQ(s.pass_through_pairs, 0);
+  // at rest: 120 spheres of 15 g with 1e-4 J have a mean speed of 1 cm/s
+  EXPECT_LT(s.final_kinetic_energy, 1e-4);
+  EXPECT_EQ(s.unresolved_points, 0);
+}
+
+TEST(PaperScenarios, ClosestFeatureSpheresStickAtTheSameTimestep) {
+  RolloutSummary s = RunSpheres(DepthMethod::kClosest);
+  Print("spheres, closest feature, 4 ms", s);
+  // the paper's Fig. 9: pairs resting inside each other
+  EXPECT_GE(s.sticking_pairs, 1);
+  EXPECT_LT(s.final_kinetic_energy, 1e-4) << "and they are at rest so";
+}
+
+TEST(PaperScenarios, MixedObjectsReachRestAndStayThere) {
+  WorldOptions options;
+  options.timestep = 0.005;
+  Scenario scenario(PaperScene("mixed.xml"), options);
+  // at rest: the fastest vertex slower than 2 cm/s for 0.1 s in a row
+  const double rest_speed = 0.02;  // m/s
+  int slow_steps = 0;
+  auto at_rest = [&](const World& w) {
+    slow_steps = MaxSpeed(w) < rest_speed ? slow_steps + 1 : 0;
+    return slow_steps * w.timestep() >= 0.1;
+  };
+  ASSERT_TRUE(scenario.RunUntil(at_rest, 3.0))
+      << (scenario.ok() ? "not at rest after 3 s" : scenario.message());
+  const double rest_time = scenario.world().time();
+  std::vector<Eigen::Vector3d> centres;
+  for (int i = 0; i < scenario.world().num_deformables(); ++i)
+    centres.push_back(scenario.world().deformable(i).CenterOfMass());
+  double fastest = 0.0;
+  ASSERT_TRUE(scenario.Run(1.0, [&](World& w) { fastest = std::max(fastest, MaxSpeed(w)); }))
+      << scenario.message();
+  RolloutSummary s = scenario.Summarize();
+  Print("mixed, consistent, 5 ms", s);
+  std::printf("at rest from %.3f s; fastest vertex over the next second %.4f m/s\n", rest_time,
+              fastest);
+  EXPECT_LT(fastest, rest_speed);
+  for (int i = 0; i < scenario.world().num_deformables(); ++i) {
+    EXPECT_LT((scenario.world().deformable(i).CenterOfMass() - centres[i]).norm(), 0.005)
+        << scenario.world().deformable(i).name() << " stays put";
+  }
+  EXPECT_EQ(s.sticking_pairs, 0);
+  EXPECT_EQ(s.pass_through_pairs, 0);
+}
+
 }  // namespace
 }  // namespace tetcosim
