@@ -11,14 +11,23 @@ namespace tetcosim::app {
 
 inline nlohmann::ordered_json MetricsJson(const RolloutSummary& s,
                                           const RolloutMetricsOptions& options) {
-  nlohmann::ordered_json events = nlohmann::ordered_json::array();
-  for (const PairEvent& e : s.events) {
-    events.push_back(
-        {{"kind", e.kind}, {"a", e.name_a}, {"b", e.name_b}, {"time", e.time}, {"depth", e.depth}});
-  }
+  auto pairs = [](const std::vector<PairEvent>& list) {
+    nlohmann::ordered_json array = nlohmann::ordered_json::array();
+    for (const PairEvent& e : list) {
+      array.push_back({{"kind", e.kind},
+                       {"a", e.name_a},
+                       {"b", e.name_b},
+                       {"time", e.time},
+                       {"depth", e.depth},
+                       {"threshold", e.threshold}});
+    }
+    return array;
+  };
   return {{"pass_through_pairs", s.pass_through_pairs},
           {"sticking_pairs", s.sticking_pairs},
-          {"events", events},
+          {"interpenetrating_pairs", s.interpenetrating_pairs},
+          {"events", pairs(s.events)},
+          {"deepest_pairs", pairs(s.deepest_pairs)},
           {"residual_max_depth", s.residual_max_depth},
           {"residual_mean_depth", s.residual_mean_depth},
           {"residual_points", s.residual_points},

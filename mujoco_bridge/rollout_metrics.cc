@@ -68,6 +68,18 @@ Eigen::Vector3d RolloutMetrics::Center(const World& world, int object,
   return world.RigidBodyCenterOfMass(object - num_deformables_);
 }
 
+Eigen::Vector3d RolloutMetrics::CenterVelocity(const World& world, int object) const {
+  if (object < num_deformables_) {
+    const DeformableBody& body = world.deformable(object);
+    return body.LinearMomentum() / body.model().total_mass();
+  }
+  const int b = object - num_deformables_;
+  if (static_[object]) return Eigen::Vector3d::Zero();
+  return world.RigidBodyLinearVelocity(b) +
+         world.RigidBodyAngularVelocity(b).cross(world.RigidBodyCenterOfMass(b) -
+                                                 world.RigidBodyPosition(b));
+}
+
 bool RolloutMetrics::Flipped(const World& world, int a, int b, const Episode& episode) const {
   if (episode.n0.isZero()) return false;
   return (Center(world, a, episode.anchor_a) - Center(world, b, episode.anchor_b)).dot(episode.n0) <
@@ -75,8 +87,9 @@ bool RolloutMetrics::Flipped(const World& world, int a, int b, const Episode& ep
 }
 
 void RolloutMetrics::AddEvent(const World& world, const std::string& kind, int a, int b,
-                              double depth, std::vector<PairEvent>& events) const {
-  events.push_back({kind, a, b, names_[a], names_[b], world.time(), depth});
+                              double depth, double threshold,
+                              std::vector<PairEvent>& events) const {
+  events.push_back({kind, a, b, names_[a], names_[b], world.time(), depth, threshold});
 }
 
 void RolloutMetrics::Observe(const World& world) {
@@ -155,7 +168,7 @@ void RolloutMetrics::Observe(const World& world) {
       continue;
     }
     if (Flipped(world, it->first.first, it->first.second, it->second))
-      AddEvent(world, "pass-through", it->first.first, it->first.second, 0.0, events_);
+      AddEvent(world, "pass-through", it->first.first, it->first.second, 0.0, 0.0, events_);
     it = open_.erase(it);
   }
 
@@ -208,36 +221,66 @@ RolloutSummary RolloutMetrics::Summarize(World& world) const {
   s.events = events_;
   for (const auto& [pair, episode] : open_) {
     if (Flipped(world, pair.first, pair.second, episode))
-      AddEvent(world, "pass-through", pair.first, pair.second, 0.0, s.events);
+      AddEvent(world, "pass-through", pair.first, pair.second, 0.0, 0.0, s.events);
   }
 
-  // exact interpenetration of the current state, deepest per pair
+  // exact interpenetration of the current state, deepest per pair; a static
+  // body's centre is where the pair's points are
   std::map<std::pair<int, int>, double> deepest;
+  std::map<std::pair<int, int>, Eigen::Vector3d> anchor;
   double depth_sum = 0.0;
   for (const Interpenetration& point : world.MeasureInterpenetration()) {
     s.residual_max_depth = std::max(s.residual_max_depth, point.depth);
     depth_sum += point.depth;
     ++s.residual_points;
     if (point.inside == point.penetrated) continue;
-    double& depth = deepest[{std::min(point.inside, point.penetrated),
-                             std::max(point.inside, point.penetrated)}];
+    const std::pair<int, int> pair(std::min(point.inside, point.penetrated),
+                                   std::max(point.inside, point.penetrated));
+    double& depth = deepest[pair];
     depth = std::max(depth, point.depth);
+    anchor.emplace(pair, point.point);
   }
   if (s.residual_points > 0) s.residual_mean_depth = depth_sum / s.residual_points;
   std::set<std::pair<int, int>> passed;
   for (const PairEvent& event : s.events) passed.insert({event.a, event.b});
+  std::vector<PairEvent> ranked;
   for (const auto& [pair, depth] : deepest) {
+    auto world_centre = [&](int object) { return Center(world, object, anchor.at(pair)); };
     const double thickness = std::min(thickness_[pair.first], thickness_[pair.second]);
     if (depth > options_.pass_through_fraction * thickness && !passed.count(pair)) {
-      AddEvent(world, "pass-through", pair.first, pair.second, depth, s.events);
+      AddEvent(world, "pass-through", pair.first, pair.second, depth,
+               options_.pass_through_fraction * thickness, s.events);
       passed.insert(pair);
     }
-    if (depth > options_.sticking_fraction * thickness) {
-      AddEvent(world, "sticking", pair.first, pair.second, depth, s.events);
-      ++s.sticking_pairs;
+    // a penalty contact's resting depth scales with the soft side: measure a
+    // soft-rigid pair by the deformable
+    const double soft_thickness = pair.second < num_deformables_
+                                      ? thickness
+                                      : thickness_[pair.first];  // pair.first < pair.second
+    ranked.push_back({"deepest", pair.first, pair.second, names_[pair.first], names_[pair.second],
+                      world.time(), depth, options_.sticking_fraction * soft_thickness});
+    if (depth > options_.sticking_fraction * soft_thickness) {
+      ++s.interpenetrating_pairs;
+      // at rest relative to each other: the distance between the centres
+      // does not change (a pair stuck together may still spin as one)
+      Eigen::Vector3d d = world_centre(pair.first) - world_centre(pair.second);
+      const double separation_speed =
+          d.norm() > 0.0 ? (CenterVelocity(world, pair.first) - CenterVelocity(world, pair.second))
+                               .dot(d.normalized())
+                         : 0.0;
+      if (std::abs(separation_speed) < options_.rest_speed) {
+        AddEvent(world, "sticking", pair.first, pair.second, depth,
+                 options_.sticking_fraction * soft_thickness, s.events);
+        ++s.sticking_pairs;
+      }
     }
   }
   s.pass_through_pairs = static_cast<int>(passed.size());
+  std::stable_sort(ranked.begin(), ranked.end(), [](const PairEvent& x, const PairEvent& y) {
+    return x.depth * y.threshold > y.depth * x.threshold;
+  });
+  if (ranked.size() > 5) ranked.resize(5);
+  s.deepest_pairs = ranked;
 
   s.mean_neighbour_angle = angle_count_ > 0 ? angle_sum_ / static_cast<double>(angle_count_) : 0.0;
   s.neighbour_pairs = angle_count_;

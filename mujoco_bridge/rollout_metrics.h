@@ -18,7 +18,12 @@
 //   one), the objects swapped sides: a pass-through. A pair that ends deeper
 //   than pass_through_fraction x the thinner object's thickness counts too.
 // sticking: at Summarize(), pairs interpenetrating deeper than
-//   sticking_fraction x the thinner object's thickness.
+//   sticking_fraction x the thinner object's thickness (for a deformable and a
+//   rigid body: the deformable's, since a penalty contact's resting depth
+//   scales with the soft side) while at rest relative
+//   to each other: the distance between their centres changes slower than
+//   rest_speed (a stuck pair may still drift or spin as one). Deep pairs
+//   still moving apart or together are counted in interpenetrating_pairs.
 // depths here are exact (World::MeasureInterpenetration: distance to the
 //   penetrated surface), so both depth methods are judged by the same ruler.
 // spatial consistency: mean angle between the directions of two colliding
@@ -44,8 +49,9 @@ struct RolloutMetricsOptions {
   // infinitely thick).
   double pass_through_fraction = 0.3;
   double sticking_fraction = 0.05;
-  // At rest when no deformable vertex and no rigid body's centre of mass moves
-  // faster than this (m/s).
+  // The scene is at rest when no deformable vertex and no rigid body's centre
+  // of mass moves faster than this (m/s); a pair is at rest when its centres
+  // of mass move slower than this relative to each other.
   double rest_speed = 0.02;
 };
 
@@ -54,8 +60,9 @@ struct PairEvent {
   int a = -1;        // objects (numbering above), a < b
   int b = -1;
   std::string name_a, name_b;
-  double time = 0.0;   // s: when it was detected
-  double depth = 0.0;  // m: exact interpenetration depth then
+  double time = 0.0;       // s: when it was detected
+  double depth = 0.0;      // m: exact interpenetration depth then
+  double threshold = 0.0;  // m: the depth that counts (pass-through or sticking)
 };
 
 struct RolloutSummary {
@@ -63,6 +70,10 @@ struct RolloutSummary {
   double time = 0.0;
   int pass_through_pairs = 0;  // distinct pairs
   int sticking_pairs = 0;
+  int interpenetrating_pairs = 0;  // deeper than the sticking threshold, at rest or not
+  // the (up to) five pairs deepest inside each other at the end, deepest
+  // relative to their sticking threshold first (kind "deepest")
+  std::vector<PairEvent> deepest_pairs;
   std::vector<PairEvent> events;
   // exact interpenetration of the current state
   double residual_max_depth = 0.0;   // m
@@ -117,9 +128,10 @@ class RolloutMetrics {
     long last_step = -1;
   };
   Eigen::Vector3d Center(const World& world, int object, const Eigen::Vector3d& anchor) const;
+  Eigen::Vector3d CenterVelocity(const World& world, int object) const;
   bool Flipped(const World& world, int a, int b, const Episode& episode) const;
   void AddEvent(const World& world, const std::string& kind, int a, int b, double depth,
-                std::vector<PairEvent>& events) const;
+                double threshold, std::vector<PairEvent>& events) const;
 
   RolloutMetricsOptions options_;
   int num_deformables_ = 0;

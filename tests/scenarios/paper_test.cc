@@ -30,9 +30,12 @@ void Print(const char* label, const RolloutSummary& s) {
       "max direction change %.1f deg, final KE %.3g J, max speed %.3g m/s\n",
       label, s.pass_through_pairs, s.sticking_pairs, s.residual_max_depth * 1e3,
       s.mean_neighbour_angle, s.max_direction_change, s.final_kinetic_energy, s.max_speed);
-  for (const PairEvent& e : s.events)
-    std::printf("  %s %s-%s at %.3f s, depth %.3g mm\n", e.kind.c_str(), e.name_a.c_str(),
-                e.name_b.c_str(), e.time, e.depth * 1e3);
+  for (const std::vector<PairEvent>* list : {&s.events, &s.deepest_pairs}) {
+    for (const PairEvent& e : *list) {
+      std::printf("  %s %s-%s at %.3f s, depth %.3g mm (threshold %.3g mm)\n", e.kind.c_str(),
+                  e.name_a.c_str(), e.name_b.c_str(), e.time, e.depth * 1e3, e.threshold * 1e3);
+    }
+  }
 }
 
 // The cubes meet at 10 m/s. At 4 ms a step carries them 4 cm into each other
