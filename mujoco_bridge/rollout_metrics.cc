@@ -14,13 +14,6 @@ double AngleDegrees(const Eigen::Vector3d& u, const Eigen::Vector3d& v) {
   return std::acos(std::clamp(u.dot(v), -1.0, 1.0)) * kDegrees;
 }
 
-// (collision object, penetrated object, vertex) -> one key; 20 + 20 + 24 bits
-unsigned long long DirectionKey(int object, int penetrated, int vertex) {
-  return (static_cast<unsigned long long>(object) << 44) |
-         (static_cast<unsigned long long>(penetrated) << 24) |
-         static_cast<unsigned long long>(vertex);
-}
-
 // smallest extent of the bounding box of a mesh's rest positions
 double Thickness(const TetMesh& mesh) {
   const Positions& x = mesh.positions();
@@ -98,12 +91,26 @@ void RolloutMetrics::Observe(const World& world) {
   const std::vector<ContactPoint>& contacts = world.contacts();
   const std::vector<int>& rigid = world.contact_rigid_bodies();
   const std::vector<CollisionObject>& objects = world.collision_objects();
-  // proxies: a rigid body is as thin as its thinnest proxy
-  for (int p = 0; p < world.num_proxies(); ++p) {
-    int object = num_deformables_ + world.ProxyBody(p);
-    thickness_[object] =
-        std::min(thickness_[object], Thickness(*objects[num_deformables_ + p].mesh));
+  if (steps_ == 1) {
+    // proxies: a rigid body is as thin as its thinnest proxy
+    for (int p = 0; p < world.num_proxies(); ++p) {
+      int object = num_deformables_ + world.ProxyBody(p);
+      thickness_[object] =
+          std::min(thickness_[object], Thickness(*objects[num_deformables_ + p].mesh));
+    }
+    // (collision object, penetrated object, vertex) -> one key, without
+    // overflow below 2^64 = (objects^2 x vertices of the largest mesh)
+    num_collision_objects_ = objects.size();
+    max_vertices_ = 1;
+    for (const CollisionObject& object : objects)
+      max_vertices_ = std::max<unsigned long long>(max_vertices_, object.mesh->num_vertices());
   }
+  auto DirectionKey = [&](int object, int penetrated, int vertex) {
+    return (static_cast<unsigned long long>(object) * num_collision_objects_ +
+            static_cast<unsigned long long>(penetrated)) *
+               max_vertices_ +
+           static_cast<unsigned long long>(vertex);
+  };
 
   // pairs in contact this step: sum of their contact points, deepest point
   struct Seen {
@@ -227,6 +234,7 @@ RolloutSummary RolloutMetrics::Summarize(World& world) const {
   // exact interpenetration of the current state, deepest per pair; a static
   // body's centre is where the pair's points are
   std::map<std::pair<int, int>, double> deepest;
+  std::map<std::pair<int, int>, double> deepest_mesh;  // points the depth method resolves
   std::map<std::pair<int, int>, Eigen::Vector3d> anchor;
   double depth_sum = 0.0;
   for (const Interpenetration& point : world.MeasureInterpenetration()) {
@@ -238,6 +246,10 @@ RolloutSummary RolloutMetrics::Summarize(World& world) const {
                                    std::max(point.inside, point.penetrated));
     double& depth = deepest[pair];
     depth = std::max(depth, point.depth);
+    if (!point.signed_distance) {
+      double& mesh_depth = deepest_mesh[pair];
+      mesh_depth = std::max(mesh_depth, point.depth);
+    }
     anchor.emplace(pair, point.point);
   }
   if (s.residual_points > 0) s.residual_mean_depth = depth_sum / s.residual_points;
@@ -268,8 +280,13 @@ RolloutSummary RolloutMetrics::Summarize(World& world) const {
           d.norm() > 0.0 ? (CenterVelocity(world, pair.first) - CenterVelocity(world, pair.second))
                                .dot(d.normalized())
                          : 0.0;
-      if (std::abs(separation_speed) < options_.rest_speed) {
-        AddEvent(world, "sticking", pair.first, pair.second, depth,
+      // only mesh points can be held by inconsistent depths: a primitive
+      // geom's signed distance always pushes out
+      auto mesh = deepest_mesh.find(pair);
+      const bool by_mesh =
+          mesh != deepest_mesh.end() && mesh->second > options_.sticking_fraction * soft_thickness;
+      if (by_mesh && std::abs(separation_speed) < options_.rest_speed) {
+        AddEvent(world, "sticking", pair.first, pair.second, mesh->second,
                  options_.sticking_fraction * soft_thickness, s.events);
         ++s.sticking_pairs;
       }

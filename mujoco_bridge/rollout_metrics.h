@@ -22,8 +22,11 @@
 //   rigid body: the deformable's, since a penalty contact's resting depth
 //   scales with the soft side) while at rest relative
 //   to each other: the distance between their centres changes slower than
-//   rest_speed (a stuck pair may still drift or spin as one). Deep pairs
-//   still moving apart or together are counted in interpenetrating_pairs.
+//   rest_speed (a stuck pair may still drift or spin as one). Only points
+//   inside meshes count (deformables, proxies): a primitive geom's signed
+//   distance always pushes out and cannot hold anything. Deep pairs that are
+//   still moving, or deep only in primitive geoms (a soft contact under load),
+//   are counted in interpenetrating_pairs.
 // depths here are exact (World::MeasureInterpenetration: distance to the
 //   penetrated surface), so both depth methods are judged by the same ruler.
 // spatial consistency: mean angle between the directions of two colliding
@@ -142,6 +145,8 @@ class RolloutMetrics {
   std::vector<PairEvent> events_;
   // direction of each colliding (object, penetrated, vertex), this and last step
   std::unordered_map<unsigned long long, Eigen::Vector3d> directions_, previous_;
+  unsigned long long num_collision_objects_ = 1;
+  unsigned long long max_vertices_ = 1;
   long steps_ = 0;
   double angle_sum_ = 0.0;
   long angle_count_ = 0;

@@ -489,7 +489,7 @@ std::vector<Interpenetration> World::MeasureInterpenetration() {
   const int num_deformables = static_cast<int>(bodies_.size());
   ForEachGeomPenetration([&](int i, int v, int g, double depth, const Eigen::Vector3d&) {
     points.push_back({i, num_deformables + model_->geom_bodyid[g], depth,
-                      bodies_[i]->positions().row(v).transpose()});
+                      bodies_[i]->positions().row(v).transpose(), true});
   });
   return points;
 }

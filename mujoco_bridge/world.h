@@ -46,6 +46,7 @@ struct Interpenetration {
   int penetrated = -1;  // the object it is inside
   double depth = 0.0;   // m: distance to the penetrated object's surface
   Eigen::Vector3d point = Eigen::Vector3d::Zero();  // world frame
+  bool signed_distance = false;                     // inside a primitive geom (not a mesh)
 };
 
 // Per-step figures (the last Step()).

@@ -91,6 +91,25 @@ TEST(RolloutMetrics, FallingThroughTheFloorIsAPassThrough) {
   EXPECT_EQ(bounce.Summarize().pass_through_pairs, 0);
 }
 
+TEST(RolloutMetrics, DeepInAPrimitiveGeomIsNotSticking) {
+  TempDir dir("tetcosim_metrics");
+  // a cube 2 cm into the floor at rest: deep, but a signed distance always
+  // pushes out, so it is counted as interpenetrating, not as sticking
+  Scenario scenario(dir.Write("sunk.xml", R"(<mujoco>
+  <option gravity="0 0 0"/>
+  <worldbody><geom name="floor" type="plane" size="1 1 0.1"/></worldbody>
+  <deformable>
+    <contact stiffness="1e-6"/>
+    <tetbody name="cube" shape="box" size="0.05 0.05 0.05" resolution="3 3 3" pos="0 0 0.03"/>
+  </deformable>
+</mujoco>)"));
+  RolloutSummary s = scenario.Summarize();
+  EXPECT_NEAR(s.residual_max_depth, 0.02, 1e-12);
+  EXPECT_EQ(s.interpenetrating_pairs, 1);
+  EXPECT_EQ(s.sticking_pairs, 0);
+  EXPECT_EQ(s.pass_through_pairs, 0);
+}
+
 // spatial and temporal figures of every step against a brute-force count over
 // all pairs of results
 TEST(RolloutMetrics, DirectionFiguresMatchBruteForce) {
