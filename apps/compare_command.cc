@@ -18,6 +18,7 @@
 #include <sstream>
 
 #include "apps/commands.h"
+#include "apps/interrupt.h"
 #include "apps/metrics_json.h"
 #include "mesh/error.h"
 #include "mesh/mesh_io.h"
@@ -27,11 +28,6 @@
 
 namespace tetcosim::app {
 namespace {
-
-std::atomic<bool> interrupted{false};
-void OnInterrupt(int) {
-  interrupted = true;
-}
 
 struct CompareOptions {
   std::string scene;
@@ -288,7 +284,7 @@ void RunCompare(CompareOptions options) {
   if (error) throw Error(options.out + ": cannot create the output folder: " + error.message());
   World::Load(options.scene);  // report a bad scene before the first run
 
-  std::signal(SIGINT, OnInterrupt);
+  CatchInterrupt();
   std::printf("%s: %zu runs of %g s into %s/\n", options.scene.c_str(),
               dts.size() * options.methods.size(), options.duration, options.out.c_str());
   std::vector<RunRow> rows;

@@ -14,6 +14,7 @@
 #include <nlohmann/json.hpp>
 
 #include "apps/commands.h"
+#include "apps/interrupt.h"
 #include "apps/metrics_json.h"
 #include "mesh/error.h"
 #include "mesh/mesh_io.h"
@@ -23,11 +24,6 @@
 
 namespace tetcosim::app {
 namespace {
-
-std::atomic<bool> interrupted{false};
-void OnInterrupt(int) {
-  interrupted = true;
-}
 
 struct RunOptions {
   std::string scene;
@@ -103,7 +99,7 @@ void RunRollout(const RunOptions& options) {
   const long frame_every = std::max(1L, static_cast<long>(std::llround(1.0 / (options.fps * dt))));
   std::vector<std::pair<double, std::string>> series;
 
-  std::signal(SIGINT, OnInterrupt);
+  CatchInterrupt();
   const bool terminal = isatty(fileno(stderr));
   std::string status = "ok";
   std::string message;
