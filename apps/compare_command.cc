@@ -237,7 +237,7 @@ void WritePlots(const std::vector<RunRow>& rows, const std::filesystem::path& ou
   std::ostringstream gp;
   gp << "# made by tetcosim compare; run: gnuplot plots.gp\n"
         "set datafile separator ','\nset terminal pngcairo size 900,420 noenhanced\n"
-        "set key outside right\nset xlabel 'time (s)'\nset grid\n";
+        "set key outside right\nset xlabel 'time (s)'\nset grid\nset format y '%g'\n";
   // one colour per time step; consistent solid, closest dashed
   std::vector<double> dts;
   for (const RunRow& row : rows)

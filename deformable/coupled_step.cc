@@ -105,11 +105,8 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
 
   // y = A x
   auto multiply = [&](const Eigen::VectorXd& x, Eigen::VectorXd& y) {
-    for (int k = 0; k < num_bodies; ++k) {
-      const int size = offset[k + 1] - offset[k];
-      y.segment(offset[k], size).noalias() =
-          bodies[k]->system_matrix() * x.segment(offset[k], size);
-    }
+    for (int k = 0; k < num_bodies; ++k)
+      bodies[k]->MultiplySystem(x.data() + offset[k], y.data() + offset[k]);
     for (const Coupling& coupling : couplings) coupling.AddJt(coupling.gain * coupling.Jv(x), y);
   };
   auto filter = [&](Eigen::VectorXd& x) {

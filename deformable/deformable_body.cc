@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include "deformable/corotational.h"
+#include "deformable/coupled_step.h"
 #include "mesh/error.h"
 
 namespace tetcosim {
@@ -156,6 +157,31 @@ void DeformableBody::Assemble(const StepSettings& settings) {
   }
 }
 
+void DeformableBody::MultiplySystem(const double* x, double* y) const {
+  const std::vector<int>& row_start = model_->row_start();
+  const std::vector<int>& columns = model_->columns();
+  const double* values = A_.valuePtr();
+  const int num_vertices = model_->num_vertices();
+  for (int v = 0; v < num_vertices; ++v) {
+    const int begin = row_start[3 * v];
+    const int length = row_start[3 * v + 1] - begin;  // the same for the three rows
+    const double* a0 = values + begin;
+    const double* a1 = a0 + length;
+    const double* a2 = a1 + length;
+    const int* column = columns.data() + begin;
+    double y0 = 0.0, y1 = 0.0, y2 = 0.0;
+    for (int k = 0; k < length; k += 3) {
+      const double* xu = x + column[k];  // 3u, 3u+1, 3u+2
+      y0 += a0[k] * xu[0] + a0[k + 1] * xu[1] + a0[k + 2] * xu[2];
+      y1 += a1[k] * xu[0] + a1[k + 1] * xu[1] + a1[k + 2] * xu[2];
+      y2 += a2[k] * xu[0] + a2[k + 1] * xu[1] + a2[k + 2] * xu[2];
+    }
+    y[3 * v] = y0;
+    y[3 * v + 1] = y1;
+    y[3 * v + 2] = y2;
+  }
+}
+
 // pinned DoFs: v+ = (target - x) / dt, eliminated from the system symmetrically
 void DeformableBody::ApplyPins(const StepSettings& settings) {
   if (pinned_.empty()) return;
@@ -211,30 +237,34 @@ void DeformableBody::Solve(const StepSettings& settings, StepReport& report) {
   Eigen::Map<const Eigen::VectorXd> v(v_.data(), v_.size());
   rhs_.noalias() = b_ - A_ * v;
   if (delta_v_.size() != rhs_.size()) delta_v_.setZero(rhs_.size());
-  if (settings.solver == LinearSolver::kConjugateGradient) {
-    cg_.setTolerance(settings.cg_tolerance);
-    cg_.setMaxIterations(settings.cg_max_iterations);
-    cg_.compute(A_);
-    delta_v_ = cg_.solveWithGuess(rhs_, delta_v_);  // warm start: the last change
-    report.iterations = static_cast<int>(cg_.iterations());
-    report.residual = cg_.error();
-  } else {
-    Eigen::SparseMatrix<double> A = A_;  // column-major copy (A is symmetric)
-    if (!ldlt_analyzed_) {
-      ldlt_.analyzePattern(A);
-      ldlt_analyzed_ = true;
-    }
-    ldlt_.factorize(A);
-    delta_v_ = ldlt_.solve(rhs_);
-    report.iterations = 0;
-    double norm = rhs_.norm();
-    report.residual = norm > 0.0 ? (A_ * delta_v_ - rhs_).norm() / norm : 0.0;
+  // sparse LDLT (the conjugate-gradient path goes through StepCoupled)
+  Eigen::SparseMatrix<double> A = A_;  // column-major copy (A is symmetric)
+  if (!ldlt_analyzed_) {
+    ldlt_.analyzePattern(A);
+    ldlt_analyzed_ = true;
   }
+  ldlt_.factorize(A);
+  delta_v_ = ldlt_.solve(rhs_);
+  report.iterations = 0;
+  double norm = rhs_.norm();
+  report.residual = norm > 0.0 ? (A_ * delta_v_ - rhs_).norm() / norm : 0.0;
   solution_ = v + delta_v_;
 }
 
 StepReport DeformableBody::Step(const StepSettings& settings) {
   StepReport report;
+  if (settings.solver == LinearSolver::kConjugateGradient) {
+    // the coupled step's solver with no contacts: block-Jacobi PCG on the
+    // vertex-blocked product, pins as prescribed velocities
+    DeformableBody* self = this;
+    const CoupledStepReport coupled =
+        StepCoupled(std::span<DeformableBody* const>(&self, 1), {}, ContactSettings{}, settings);
+    report.status = coupled.status;
+    report.bad_vertex = coupled.bad_vertex;
+    report.iterations = coupled.iterations;
+    report.residual = coupled.residual;
+    return report;
+  }
   Eigen::setNbThreads(std::max(1, settings.num_threads));
   Assemble(settings);
   ApplyPins(settings);

@@ -44,6 +44,25 @@ TEST(DeformableBody, FreeFallMatchesGravityAtSeveralTimeSteps) {
   }
 }
 
+// the vertex-blocked product against Eigen's sparse product, on a deformed,
+// moving, pinned body
+TEST(DeformableBody, MultiplySystemMatchesTheSparseProduct) {
+  auto model = Model("box:size=0.05,0.03,0.02:res=4,3,2", Material{1e6, 0.3, 1000, 1, 0.01});
+  DeformableBody body(model, "box");
+  std::srand(3);
+  body.mutable_positions() += 0.003 * Positions::Random(body.num_vertices(), 3);
+  body.mutable_velocities() = Positions::Random(body.num_vertices(), 3);
+  body.Pin(0);
+  body.Pin(5);
+  StepSettings settings;
+  body.PrepareStep(settings);
+  const Eigen::VectorXd v = Eigen::VectorXd::Random(3 * body.num_vertices());
+  Eigen::VectorXd blocked(v.size());
+  body.MultiplySystem(v.data(), blocked.data());
+  const Eigen::VectorXd sparse = body.system_matrix() * v;
+  EXPECT_LT((blocked - sparse).norm(), 1e-12 * sparse.norm());
+}
+
 // Euler-Bernoulli: a cantilever of length L under its own weight q = rho g A
 // deflects q L^4 / (8 E I) at the tip.
 TEST(DeformableBody, CantileverApproachesEulerBernoulli) {
