@@ -51,16 +51,8 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     const int size = 3 * body.num_vertices();
     v.segment(offset[k], size) = Eigen::Map<const Eigen::VectorXd>(body.velocities().data(), size);
     b.segment(offset[k], size) = body.system_rhs();
-    const double* values = body.system_matrix().valuePtr();
-    const std::vector<int>& row_start = body.model().row_start();
-    for (int vertex = 0; vertex < body.num_vertices(); ++vertex) {
-      Eigen::Matrix3d& block = blocks[static_cast<size_t>(offset[k] / 3 + vertex)];
-      for (int r = 0; r < 3; ++r) {
-        const double* row =
-            values + row_start[3 * vertex + r] + body.model().diagonal_slot()[vertex];
-        for (int c = 0; c < 3; ++c) block(r, c) = row[c];
-      }
-    }
+    for (int vertex = 0; vertex < body.num_vertices(); ++vertex)
+      blocks[static_cast<size_t>(offset[k] / 3 + vertex)] = body.system_diagonal_block(vertex);
     const Eigen::VectorXd& last = body.last_velocity_change();
     delta.segment(offset[k], size) = last.size() == size ? last : Eigen::VectorXd::Zero(size);
     for (size_t i = 0; i < body.pinned_vertices().size(); ++i) {
@@ -172,8 +164,8 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   const Eigen::VectorXd residual = Av + Adelta - b;  // A v+ - b
   for (int k = 0; k < num_bodies; ++k) {
     const int size = offset[k + 1] - offset[k];
-    StepReport body_report = bodies[k]->FinishStep(v_new.segment(offset[k], size),
-                                                   residual.segment(offset[k], size), settings);
+    StepReport body_report = bodies[k]->FinishStep(
+        v_new.segment(offset[k], size), residual.segment(offset[k], size), settings, iteration);
     if (body_report.status != StepStatus::kOk && report.status == StepStatus::kOk) {
       report.status = body_report.status;
       report.bad_body = k;

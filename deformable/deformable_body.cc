@@ -74,7 +74,7 @@ void DeformableBody::PinToFrame(const std::vector<int>& vertices, const Eigen::I
 // A = (1 + dt alpha) M + (dt beta + dt^2) K
 // b = M v + dt (f_elastic + M g + f_applied)
 // (contact terms are added by coupled_step.h)
-void DeformableBody::Assemble(const StepSettings& settings) {
+void DeformableBody::Assemble(const StepSettings& settings, bool matrix) {
   const FemModel& model = *model_;
   const TetMesh& mesh = model.mesh();
   const double dt = settings.dt;
@@ -84,8 +84,14 @@ void DeformableBody::Assemble(const StepSettings& settings) {
   const double mass_scale = 1.0 + dt * model.material().damping_mass;
   double* values = A_.valuePtr();
   const std::vector<int>& row_start = model.row_start();
-  std::fill(values, values + A_.nonZeros(), 0.0);
+  if (matrix) std::fill(values, values + A_.nonZeros(), 0.0);
   b_.setZero();
+  assembled_ = matrix;
+  mass_scale_ = mass_scale;
+  num_threads_ = settings.num_threads;
+  rotated_gradients_.resize(model.num_tets());
+  element_scale_.resize(model.num_tets());
+  diagonal_blocks_.assign(model.num_vertices(), Eigen::Matrix3d::Zero());
 
   // element loop: in mesh order on one thread (memory locality); with more,
   // one colour at a time (no two elements of a colour share a vertex, so the
@@ -120,6 +126,15 @@ void DeformableBody::Assemble(const StepSettings& settings) {
       // K_ji = K_ij^T
       const Eigen::Matrix<double, 4, 3> c = grad * R.transpose();
       const double s = stiffness_scale * volume;
+      rotated_gradients_[t] = c;
+      element_scale_[t] = s;
+      // K_ii, for the preconditioner (b_i . b_i = c_i . c_i)
+      for (int a = 0; a < 4; ++a) {
+        Eigen::Matrix3d& block = diagonal_blocks_[tet[a]];
+        block.noalias() += (s * (lambda + mu)) * c.row(a).transpose() * c.row(a);
+        block.diagonal().array() += s * mu * c.row(a).squaredNorm();
+      }
+      if (!matrix) continue;
       const std::array<int, 16>& slots = model.element_slots()[t];
       for (int a = 0; a < 4; ++a) {
         const int row_a = row_start[3 * tet[a]];
@@ -150,18 +165,68 @@ void DeformableBody::Assemble(const StepSettings& settings) {
   const Eigen::VectorXd& masses = model.masses();
   for (int v = 0; v < model.num_vertices(); ++v) {
     const double m = masses[v];
-    for (int r = 0; r < 3; ++r)
-      values[row_start[3 * v + r] + model.diagonal_slot()[v] + r] += mass_scale * m;
+    diagonal_blocks_[v].diagonal().array() += mass_scale * m;
+    if (matrix) {
+      for (int r = 0; r < 3; ++r)
+        values[row_start[3 * v + r] + model.diagonal_slot()[v] + r] += mass_scale * m;
+    }
     b_.segment<3>(3 * v) +=
         m * v_.row(v).transpose() + dt * (m * settings.gravity + applied_.row(v).transpose());
   }
 }
 
+// y = (1 + dt alpha) M x + sum_e s V K_e x_e with, for linear tets and
+// c_i = R b_i, K_e x_e at vertex i = (lambda tr(G) I + mu (G + G^T)) c_i,
+// G = sum_j x_j c_j^T: the co-rotated linear stress of the "strain" G
+void DeformableBody::MultiplyElementWise(const double* x, double* y) const {
+  const FemModel& model = *model_;
+  const TetMesh& mesh = model.mesh();
+  const double mu = model.mu();
+  const double lambda = model.lambda();
+  const Eigen::VectorXd& masses = model.masses();
+  for (int v = 0; v < model.num_vertices(); ++v) {
+    const double m = mass_scale_ * masses[v];
+    y[3 * v] = m * x[3 * v];
+    y[3 * v + 1] = m * x[3 * v + 1];
+    y[3 * v + 2] = m * x[3 * v + 2];
+  }
+  // element loop, ordered as in Assemble: mesh order on one thread, one
+  // colour at a time on more
+  const bool threaded = num_threads_ > 1;
+  const std::vector<int>& colored = model.colored_tets();
+  const std::vector<int>& color_offsets = model.color_offsets();
+  const int num_colors = threaded ? static_cast<int>(color_offsets.size()) - 1 : 1;
+  for (int color = 0; color < num_colors; ++color) {
+    const bool parallel = threaded && color < 63;
+    const int begin = threaded ? color_offsets[color] : 0;
+    const int end = threaded ? color_offsets[color + 1] : model.num_tets();
+#pragma omp parallel for num_threads(num_threads_) schedule(static) if (parallel)
+    for (int k = begin; k < end; ++k) {
+      const int t = threaded ? colored[k] : k;
+      const auto tet = mesh.tets().row(t);
+      const Eigen::Matrix<double, 4, 3>& c = rotated_gradients_[t];
+      Eigen::Matrix3d G = Eigen::Matrix3d::Zero();
+      for (int j = 0; j < 4; ++j)
+        G.noalias() += Eigen::Map<const Eigen::Vector3d>(x + 3 * tet[j]) * c.row(j);
+      Eigen::Matrix3d S = (mu * element_scale_[t]) * (G + G.transpose());
+      S.diagonal().array() += lambda * element_scale_[t] * G.trace();
+      for (int i = 0; i < 4; ++i)
+        Eigen::Map<Eigen::Vector3d>(y + 3 * tet[i]).noalias() += S * c.row(i).transpose();
+    }
+  }
+}
+
 void DeformableBody::MultiplySystem(const double* x, double* y) const {
+  if (!assembled_) {
+    MultiplyElementWise(x, y);
+    return;
+  }
   const std::vector<int>& row_start = model_->row_start();
   const std::vector<int>& columns = model_->columns();
   const double* values = A_.valuePtr();
   const int num_vertices = model_->num_vertices();
+  // rows are independent: the same result for any thread count
+#pragma omp parallel for num_threads(num_threads_) schedule(static) if (num_threads_ > 1)
   for (int v = 0; v < num_vertices; ++v) {
     const int begin = row_start[3 * v];
     const int length = row_start[3 * v + 1] - begin;  // the same for the three rows
@@ -266,7 +331,7 @@ StepReport DeformableBody::Step(const StepSettings& settings) {
     return report;
   }
   Eigen::setNbThreads(std::max(1, settings.num_threads));
-  Assemble(settings);
+  Assemble(settings, true);
   ApplyPins(settings);
   Solve(settings, report);
 
@@ -304,7 +369,13 @@ StepReport DeformableBody::Step(const StepSettings& settings) {
 
 void DeformableBody::PrepareStep(const StepSettings& settings) {
   Eigen::setNbThreads(std::max(1, settings.num_threads));
-  Assemble(settings);
+  // kAuto: element-wise products are serial per colour (a fork and join per
+  // colour and product), so with threads the assembled, row-parallel product
+  // wins
+  const bool matrix = settings.system_product == SystemProduct::kAssembled ||
+                      (settings.system_product == SystemProduct::kAuto &&
+                       (last_iterations_ >= 12 || settings.num_threads > 1));
+  Assemble(settings, matrix);
 }
 
 Eigen::Vector3d DeformableBody::PinVelocity(size_t i, double dt) const {
@@ -314,8 +385,9 @@ Eigen::Vector3d DeformableBody::PinVelocity(size_t i, double dt) const {
 }
 
 StepReport DeformableBody::FinishStep(const Eigen::VectorXd& v_new, const Eigen::VectorXd& residual,
-                                      const StepSettings& settings) {
+                                      const StepSettings& settings, int iterations) {
   StepReport report;
+  last_iterations_ = iterations;
   const int n = num_vertices();
   Eigen::Map<const Positions> velocities(v_new.data(), n, 3);
   for (int v = 0; v < n; ++v) {

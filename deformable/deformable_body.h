@@ -34,6 +34,12 @@ enum class LinearSolver {
   kCholesky,           // sparse LDL^T, symbolic analysis once
 };
 
+enum class SystemProduct {
+  kAuto,
+  kAssembled,    // a sparse matrix, assembled once per step
+  kElementWise,  // matrix-free: A x = M x + sum_e K_e x_e, element by element
+};
+
 struct StepSettings {
   double dt = 1e-3;                                        // s, > 0
   Eigen::Vector3d gravity = Eigen::Vector3d(0, 0, -9.81);  // m/s^2
@@ -47,6 +53,14 @@ struct StepSettings {
   // of convergence leaves a lagged rotation that injects energy: keep >= 8.
   int rotation_iterations = 20;
   int num_threads = 1;  // for the element loop and the solver
+  // How the conjugate-gradient solve applies the system matrix A (the
+  // Cholesky solver always assembles it). Assembling costs about as much as
+  // 15 element-wise products, so kAuto goes element-wise on one thread while
+  // the last step took fewer than 12 CG iterations (small dt, soft material),
+  // and assembles otherwise, and always with more threads (the element-wise
+  // product runs colour by colour, the assembled one row-parallel). Results
+  // agree to rounding either way; each choice is deterministic.
+  SystemProduct system_product = SystemProduct::kAuto;
 };
 
 enum class StepStatus { kOk, kDiverged };
@@ -100,14 +114,21 @@ class DeformableBody {
   void PrepareStep(const StepSettings& settings);
   const Eigen::SparseMatrix<double, Eigen::RowMajor, int>& system_matrix() const { return A_; }
   const Eigen::VectorXd& system_rhs() const { return b_; }
-  // y = A x (3V each) with the system of the last PrepareStep: the same as
-  // system_matrix() * x, faster, since the three rows of a vertex share their
-  // columns (one index and three contiguous x per neighbour).
+  // Whether the last PrepareStep assembled system_matrix() (else it is
+  // stale, and the products are element-wise).
+  bool system_assembled() const { return assembled_; }
+  // y = A x (3V each) with the system of the last PrepareStep: assembled, the
+  // same as system_matrix() * x but faster, since the three rows of a vertex
+  // share their columns (one index and three contiguous x per neighbour);
+  // else element by element.
   void MultiplySystem(const double* x, double* y) const;
+  // The 3 x 3 diagonal block of A for vertex v (for preconditioners).
+  const Eigen::Matrix3d& system_diagonal_block(int v) const { return diagonal_blocks_[v]; }
   // Velocity that takes pinned vertex pinned_vertices()[i] to its target.
   Eigen::Vector3d PinVelocity(size_t i, double dt) const;
+  // `iterations`: of the solve that gave v_new (SystemProduct::kAuto).
   StepReport FinishStep(const Eigen::VectorXd& v_new, const Eigen::VectorXd& residual,
-                        const StepSettings& settings);
+                        const StepSettings& settings, int iterations);
   // The last step's velocity change (3V), a warm start for the next.
   const Eigen::VectorXd& last_velocity_change() const { return delta_v_; }
 
@@ -127,7 +148,10 @@ class DeformableBody {
  private:
   using SparseMatrix = Eigen::SparseMatrix<double, Eigen::RowMajor, int>;
 
-  void Assemble(const StepSettings& settings);
+  // builds b, the element data of the product and the diagonal blocks; and,
+  // with `matrix`, the sparse A
+  void Assemble(const StepSettings& settings, bool matrix);
+  void MultiplyElementWise(const double* x, double* y) const;
   void ApplyPins(const StepSettings& settings);
   void Solve(const StepSettings& settings, StepReport& report);
 
@@ -144,6 +168,15 @@ class DeformableBody {
   std::vector<Eigen::Vector3d> pin_forces_;
 
   // the linear system
+  bool assembled_ = false;
+  int last_iterations_ = 0;  // CG iterations of the last step (kAuto)
+  // per element, for the element-wise product: c_i = R b_i (rows, 4 x 3)
+  // and s V, s = dt beta + dt^2
+  std::vector<Eigen::Matrix<double, 4, 3>> rotated_gradients_;
+  std::vector<double> element_scale_;
+  double mass_scale_ = 1.0;  // 1 + dt alpha
+  int num_threads_ = 1;
+  std::vector<Eigen::Matrix3d> diagonal_blocks_;  // per vertex
   SparseMatrix A_;
   Eigen::VectorXd b_, solution_;
   Eigen::VectorXd rhs_, delta_v_;    // A dv = b - A v, and the last dv (warm start)

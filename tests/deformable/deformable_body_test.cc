@@ -44,23 +44,46 @@ TEST(DeformableBody, FreeFallMatchesGravityAtSeveralTimeSteps) {
   }
 }
 
-// the vertex-blocked product against Eigen's sparse product, on a deformed,
-// moving, pinned body
-TEST(DeformableBody, MultiplySystemMatchesTheSparseProduct) {
+// the three ways to apply the system matrix agree: Eigen's sparse product, the
+// vertex-blocked one and the element-wise (matrix-free) one; and so do the
+// diagonal blocks, on a deformed, moving, pinned body with damping
+TEST(DeformableBody, SystemProductsAgree) {
   auto model = Model("box:size=0.05,0.03,0.02:res=4,3,2", Material{1e6, 0.3, 1000, 1, 0.01});
-  DeformableBody body(model, "box");
-  std::srand(3);
-  body.mutable_positions() += 0.003 * Positions::Random(body.num_vertices(), 3);
-  body.mutable_velocities() = Positions::Random(body.num_vertices(), 3);
-  body.Pin(0);
-  body.Pin(5);
-  StepSettings settings;
-  body.PrepareStep(settings);
-  const Eigen::VectorXd v = Eigen::VectorXd::Random(3 * body.num_vertices());
-  Eigen::VectorXd blocked(v.size());
-  body.MultiplySystem(v.data(), blocked.data());
-  const Eigen::VectorXd sparse = body.system_matrix() * v;
-  EXPECT_LT((blocked - sparse).norm(), 1e-12 * sparse.norm());
+  for (int threads : {1, 2}) {
+    DeformableBody body(model, "box");
+    std::srand(3);
+    body.mutable_positions() += 0.003 * Positions::Random(body.num_vertices(), 3);
+    body.mutable_velocities() = Positions::Random(body.num_vertices(), 3);
+    body.Pin(0);
+    body.Pin(5);
+    StepSettings settings;
+    settings.num_threads = threads;
+    settings.system_product = SystemProduct::kAssembled;
+    body.PrepareStep(settings);
+    ASSERT_TRUE(body.system_assembled());
+    const Eigen::VectorXd v = Eigen::VectorXd::Random(3 * body.num_vertices());
+    Eigen::VectorXd blocked(v.size()), element_wise(v.size());
+    body.MultiplySystem(v.data(), blocked.data());
+    const Eigen::VectorXd sparse = body.system_matrix() * v;
+    std::vector<Eigen::Matrix3d> diagonal;
+    for (int u = 0; u < body.num_vertices(); ++u) diagonal.push_back(body.system_diagonal_block(u));
+    settings.system_product = SystemProduct::kElementWise;
+    body.PrepareStep(settings);
+    ASSERT_FALSE(body.system_assembled());
+    body.MultiplySystem(v.data(), element_wise.data());
+    EXPECT_LT((blocked - sparse).norm(), 1e-12 * sparse.norm());
+    EXPECT_LT((element_wise - sparse).norm(), 1e-12 * sparse.norm());
+    const std::vector<int>& row_start = model->row_start();
+    const double* values = body.system_matrix().valuePtr();
+    for (int u = 0; u < body.num_vertices(); ++u) {
+      Eigen::Matrix3d from_matrix;
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c)
+          from_matrix(r, c) = values[row_start[3 * u + r] + model->diagonal_slot()[u] + c];
+      EXPECT_LT((body.system_diagonal_block(u) - from_matrix).norm(), 1e-12 * from_matrix.norm());
+      EXPECT_LT((diagonal[u] - from_matrix).norm(), 1e-12 * from_matrix.norm());
+    }
+  }
 }
 
 // Euler-Bernoulli: a cantilever of length L under its own weight q = rho g A
