@@ -9,6 +9,31 @@
 
 namespace tetcosim {
 
+namespace {
+
+// Calls visit(t) for every tetrahedron t: in mesh order on one thread
+// (memory locality); with more, one colour at a time, in parallel within a
+// colour. No two elements of a colour share a vertex, so a visit may scatter
+// into its vertices without races, and the summation order is fixed for any
+// thread count above one. The last colour may hold tets that share
+// vertices: it runs serially.
+template <typename Visit>
+void ForEachElement(const FemModel& model, int num_threads, const Visit& visit) {
+  const bool threaded = num_threads > 1;
+  const std::vector<int>& colored = model.colored_tets();
+  const std::vector<int>& color_offsets = model.color_offsets();
+  const int num_colors = threaded ? static_cast<int>(color_offsets.size()) - 1 : 1;
+  for (int color = 0; color < num_colors; ++color) {
+    const bool parallel = threaded && color < 63;
+    const int begin = threaded ? color_offsets[color] : 0;
+    const int end = threaded ? color_offsets[color + 1] : model.num_tets();
+#pragma omp parallel for num_threads(num_threads) schedule(static) if (parallel)
+    for (int k = begin; k < end; ++k) visit(threaded ? colored[k] : k);
+  }
+}
+
+}  // namespace
+
 DeformableBody::DeformableBody(std::shared_ptr<const FemModel> model, std::string name)
     : model_(std::move(model)), name_(std::move(name)) {
   const int n = model_->num_vertices();
@@ -93,75 +118,60 @@ void DeformableBody::Assemble(const StepSettings& settings, bool matrix) {
   element_scale_.resize(model.num_tets());
   diagonal_blocks_.assign(model.num_vertices(), Eigen::Matrix3d::Zero());
 
-  // element loop: in mesh order on one thread (memory locality); with more,
-  // one colour at a time (no two elements of a colour share a vertex, so the
-  // scatter has no races and a summation order fixed for any thread count
-  // above one)
-  const bool threaded = settings.num_threads > 1;
-  const std::vector<int>& colored = model.colored_tets();
-  const std::vector<int>& color_offsets = model.color_offsets();
-  const int num_colors = threaded ? static_cast<int>(color_offsets.size()) - 1 : 1;
-  for (int color = 0; color < num_colors; ++color) {
-    // the last colour may hold tets that share vertices: serial
-    const bool parallel = threaded && color < 63;
-    const int begin = threaded ? color_offsets[color] : 0;
-    const int end = threaded ? color_offsets[color + 1] : model.num_tets();
-#pragma omp parallel for num_threads(settings.num_threads) schedule(static) if (parallel)
-    for (int k = begin; k < end; ++k) {
-      const int t = threaded ? colored[k] : k;
-      const auto tet = mesh.tets().row(t);
-      const Eigen::Matrix<double, 4, 3>& grad = model.gradients()[t];
-      Eigen::Vector3d x[4];
-      for (int i = 0; i < 4; ++i) x[i] = x_.row(tet[i]).transpose();
-      const Eigen::Matrix3d F = DeformationGradient(grad, x);
-      const Eigen::Matrix3d R =
-          ExtractRotation(F, rotations_[t], settings.rotation_iterations, 1e-10);
-      const double volume = mesh.rest_volumes()[t];
-      // f_i = -V P b_i
-      const Eigen::Matrix3d VP = volume * CorotatedStress(F, R, mu, lambda);
-      for (int i = 0; i < 4; ++i) {
-        b_.segment<3>(3 * tet[i]).noalias() -= dt * VP * grad.row(i).transpose();
-      }
-      // K_ij = V [lambda c_i c_j^T + mu c_j c_i^T + mu (b_i . b_j) I], c_i = R b_i;
-      // K_ji = K_ij^T
-      const Eigen::Matrix<double, 4, 3> c = grad * R.transpose();
-      const double s = stiffness_scale * volume;
-      rotated_gradients_[t] = c;
-      element_scale_[t] = s;
-      // K_ii, for the preconditioner (b_i . b_i = c_i . c_i)
-      for (int a = 0; a < 4; ++a) {
-        Eigen::Matrix3d& block = diagonal_blocks_[tet[a]];
-        block.noalias() += (s * (lambda + mu)) * c.row(a).transpose() * c.row(a);
-        block.diagonal().array() += s * mu * c.row(a).squaredNorm();
-      }
-      if (!matrix) continue;
-      const std::array<int, 16>& slots = model.element_slots()[t];
-      for (int a = 0; a < 4; ++a) {
-        const int row_a = row_start[3 * tet[a]];
-        const int length_a = row_start[3 * tet[a] + 1] - row_a;
-        for (int bb = a; bb < 4; ++bb) {
-          Eigen::Matrix3d block = (s * lambda) * c.row(a).transpose() * c.row(bb) +
-                                  (s * mu) * c.row(bb).transpose() * c.row(a);
-          block.diagonal().array() += s * mu * grad.row(a).dot(grad.row(bb));
-          double* entry = values + row_a + slots[4 * a + bb];
-          for (int r = 0; r < 3; ++r, entry += length_a) {
-            entry[0] += block(r, 0);
-            entry[1] += block(r, 1);
-            entry[2] += block(r, 2);
-          }
-          if (bb == a) continue;
-          const int row_b = row_start[3 * tet[bb]];
-          const int length_b = row_start[3 * tet[bb] + 1] - row_b;
-          double* mirror = values + row_b + slots[4 * bb + a];
-          for (int r = 0; r < 3; ++r, mirror += length_b) {
-            mirror[0] += block(0, r);
-            mirror[1] += block(1, r);
-            mirror[2] += block(2, r);
-          }
+  // element loop (ForEachElement: deterministic for any thread count)
+  ForEachElement(model, settings.num_threads, [&](int t) {
+    const auto tet = mesh.tets().row(t);
+    const Eigen::Matrix<double, 4, 3>& grad = model.gradients()[t];
+    Eigen::Vector3d x[4];
+    for (int i = 0; i < 4; ++i) x[i] = x_.row(tet[i]).transpose();
+    const Eigen::Matrix3d F = DeformationGradient(grad, x);
+    const Eigen::Matrix3d R =
+        ExtractRotation(F, rotations_[t], settings.rotation_iterations, 1e-10);
+    const double volume = mesh.rest_volumes()[t];
+    // f_i = -V P b_i
+    const Eigen::Matrix3d VP = volume * CorotatedStress(F, R, mu, lambda);
+    for (int i = 0; i < 4; ++i) {
+      b_.segment<3>(3 * tet[i]).noalias() -= dt * VP * grad.row(i).transpose();
+    }
+    // K_ij = V [lambda c_i c_j^T + mu c_j c_i^T + mu (b_i . b_j) I], c_i = R b_i;
+    // K_ji = K_ij^T
+    const Eigen::Matrix<double, 4, 3> c = grad * R.transpose();
+    const double s = stiffness_scale * volume;
+    rotated_gradients_[t] = c;
+    element_scale_[t] = s;
+    // K_ii, for the preconditioner (b_i . b_i = c_i . c_i)
+    for (int a = 0; a < 4; ++a) {
+      Eigen::Matrix3d& block = diagonal_blocks_[tet[a]];
+      block.noalias() += (s * (lambda + mu)) * c.row(a).transpose() * c.row(a);
+      block.diagonal().array() += s * mu * c.row(a).squaredNorm();
+    }
+    if (!matrix) return;
+    const std::array<int, 16>& slots = model.element_slots()[t];
+    for (int a = 0; a < 4; ++a) {
+      const int row_a = row_start[3 * tet[a]];
+      const int length_a = row_start[3 * tet[a] + 1] - row_a;
+      for (int bb = a; bb < 4; ++bb) {
+        Eigen::Matrix3d block = (s * lambda) * c.row(a).transpose() * c.row(bb) +
+                                (s * mu) * c.row(bb).transpose() * c.row(a);
+        block.diagonal().array() += s * mu * grad.row(a).dot(grad.row(bb));
+        double* entry = values + row_a + slots[4 * a + bb];
+        for (int r = 0; r < 3; ++r, entry += length_a) {
+          entry[0] += block(r, 0);
+          entry[1] += block(r, 1);
+          entry[2] += block(r, 2);
+        }
+        if (bb == a) continue;
+        const int row_b = row_start[3 * tet[bb]];
+        const int length_b = row_start[3 * tet[bb] + 1] - row_b;
+        double* mirror = values + row_b + slots[4 * bb + a];
+        for (int r = 0; r < 3; ++r, mirror += length_b) {
+          mirror[0] += block(0, r);
+          mirror[1] += block(1, r);
+          mirror[2] += block(2, r);
         }
       }
     }
-  }
+  });
   const Eigen::VectorXd& masses = model.masses();
   for (int v = 0; v < model.num_vertices(); ++v) {
     const double m = masses[v];
@@ -190,30 +200,18 @@ void DeformableBody::MultiplyElementWise(const double* x, double* y) const {
     y[3 * v + 1] = m * x[3 * v + 1];
     y[3 * v + 2] = m * x[3 * v + 2];
   }
-  // element loop, ordered as in Assemble: mesh order on one thread, one
-  // colour at a time on more
-  const bool threaded = num_threads_ > 1;
-  const std::vector<int>& colored = model.colored_tets();
-  const std::vector<int>& color_offsets = model.color_offsets();
-  const int num_colors = threaded ? static_cast<int>(color_offsets.size()) - 1 : 1;
-  for (int color = 0; color < num_colors; ++color) {
-    const bool parallel = threaded && color < 63;
-    const int begin = threaded ? color_offsets[color] : 0;
-    const int end = threaded ? color_offsets[color + 1] : model.num_tets();
-#pragma omp parallel for num_threads(num_threads_) schedule(static) if (parallel)
-    for (int k = begin; k < end; ++k) {
-      const int t = threaded ? colored[k] : k;
-      const auto tet = mesh.tets().row(t);
-      const Eigen::Matrix<double, 4, 3>& c = rotated_gradients_[t];
-      Eigen::Matrix3d G = Eigen::Matrix3d::Zero();
-      for (int j = 0; j < 4; ++j)
-        G.noalias() += Eigen::Map<const Eigen::Vector3d>(x + 3 * tet[j]) * c.row(j);
-      Eigen::Matrix3d S = (mu * element_scale_[t]) * (G + G.transpose());
-      S.diagonal().array() += lambda * element_scale_[t] * G.trace();
-      for (int i = 0; i < 4; ++i)
-        Eigen::Map<Eigen::Vector3d>(y + 3 * tet[i]).noalias() += S * c.row(i).transpose();
-    }
-  }
+  // element loop, ordered as in Assemble
+  ForEachElement(model, num_threads_, [&](int t) {
+    const auto tet = mesh.tets().row(t);
+    const Eigen::Matrix<double, 4, 3>& c = rotated_gradients_[t];
+    Eigen::Matrix3d G = Eigen::Matrix3d::Zero();
+    for (int j = 0; j < 4; ++j)
+      G.noalias() += Eigen::Map<const Eigen::Vector3d>(x + 3 * tet[j]) * c.row(j);
+    Eigen::Matrix3d S = (mu * element_scale_[t]) * (G + G.transpose());
+    S.diagonal().array() += lambda * element_scale_[t] * G.trace();
+    for (int i = 0; i < 4; ++i)
+      Eigen::Map<Eigen::Vector3d>(y + 3 * tet[i]).noalias() += S * c.row(i).transpose();
+  });
 }
 
 void DeformableBody::MultiplySystem(const double* x, double* y) const {
@@ -298,7 +296,7 @@ void DeformableBody::ApplyPins(const StepSettings& settings) {
 
 // solves for the velocity change dv = v+ - v: A dv = b - A v, so that the
 // solver's relative tolerance applies to the change, not to the momentum
-void DeformableBody::Solve(const StepSettings& settings, StepReport& report) {
+void DeformableBody::Solve(StepReport& report) {
   Eigen::Map<const Eigen::VectorXd> v(v_.data(), v_.size());
   rhs_.noalias() = b_ - A_ * v;
   if (delta_v_.size() != rhs_.size()) delta_v_.setZero(rhs_.size());
@@ -333,7 +331,7 @@ StepReport DeformableBody::Step(const StepSettings& settings) {
   Eigen::setNbThreads(std::max(1, settings.num_threads));
   Assemble(settings, true);
   ApplyPins(settings);
-  Solve(settings, report);
+  Solve(report);
 
   // commit only a finite state
   const int n = num_vertices();

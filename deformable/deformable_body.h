@@ -153,7 +153,7 @@ class DeformableBody {
   void Assemble(const StepSettings& settings, bool matrix);
   void MultiplyElementWise(const double* x, double* y) const;
   void ApplyPins(const StepSettings& settings);
-  void Solve(const StepSettings& settings, StepReport& report);
+  void Solve(StepReport& report);
 
   std::shared_ptr<const FemModel> model_;
   std::string name_;
