@@ -555,6 +555,11 @@ void World::Step() {
   if (controller_) controller_(*this);
   mjModel* m = model_;
   mjData* d = data_;
+  // MuJoCo's own instability warnings: it resets its state and goes on, so
+  // count them to report a status instead of silently wrong rigid bodies
+  constexpr int kBadState[3] = {mjWARN_BADQPOS, mjWARN_BADQVEL, mjWARN_BADQACC};
+  int bad_before[3];
+  for (int k = 0; k < 3; ++k) bad_before[k] = d->warning[kBadState[k]].number;
   // the user's part of xfrc_applied: whatever is there beyond what we wrote
   std::vector<double> user(6 * m->nbody);
   for (int i = 0; i < 6 * m->nbody; ++i) user[i] = d->xfrc_applied[i] - ours_[i];
@@ -656,6 +661,17 @@ void World::Step() {
   mj_comPos(m, d);
   mj_comVel(m, d);
   metrics_.mujoco_ms += MillisecondsSince(phase);
+  for (int k = 0; k < 3; ++k) {
+    if (d->warning[kBadState[k]].number == bad_before[k]) continue;
+    static const char* const kWhat[3] = {"position", "velocity", "acceleration"};
+    metrics_.status = StepStatus::kDiverged;
+    std::ostringstream message;
+    message << "MuJoCo found a non-finite or huge " << kWhat[k] << " at DOF "
+            << d->warning[kBadState[k]].lastinfo << " at step " << steps_
+            << " and reset its bodies; try a smaller timestep or softer actuators and joints";
+    metrics_.message = message.str();
+    break;
+  }
   ++steps_;
   metrics_.total_ms = MillisecondsSince(start);
 }

@@ -73,8 +73,10 @@ class World {
   World(const World&) = delete;
   World& operator=(const World&) = delete;
 
-  // Advances everything by one MuJoCo time step. A non-finite state is
-  // reported in metrics().status; the world then stays as it was.
+  // Advances everything by one MuJoCo time step. A non-finite deformable
+  // state is reported in metrics().status (kDiverged, with a message); the
+  // deformables then stay as they were. A rigid-body state MuJoCo finds bad
+  // (it resets its bodies and warns) is reported the same way.
   void Step();
   // Called at the start of every Step(), before mj_step1: set ctrl, apply
   // forces (xfrc_applied is kept as the user left it).

@@ -163,6 +163,20 @@ TEST(Coupling, CubeRestsOnAFreeBoxWithoutDrift) {
       << "resting on the box top";
 }
 
+// MuJoCo resets its state on a NaN and only warns: the world reports it
+TEST(WorldStep, UnstableRigidStateIsAStatus) {
+  std::unique_ptr<World> world =
+      World::Load(std::string(TETCOSIM_SOURCE_DIR) + "/models/scenes/cube_on_box.xml");
+  world->Step();
+  ASSERT_EQ(world->metrics().status, StepStatus::kOk);
+  world->SetController([](World& w) { w.mj_data()->qvel[0] = std::nan(""); });
+  world->Step();
+  EXPECT_EQ(world->metrics().status, StepStatus::kDiverged);
+  EXPECT_NE(world->metrics().message.find("MuJoCo found a non-finite or huge velocity"),
+            std::string::npos)
+      << world->metrics().message;
+}
+
 TEST(RunCommand, OutputsParse) {
   TempDir dir;
   std::string command = std::string(TETCOSIM_BINARY) + " run " + TETCOSIM_SOURCE_DIR +
