@@ -91,14 +91,15 @@ RunRow RunOne(const CompareOptions& options, const std::string& method, double d
   row.method = method;
   row.dt_ms = dt_ms;
   row.folder = "runs/" + RunName(method, dt_ms);
-  const std::filesystem::path folder = out / row.folder;
-  std::filesystem::create_directories(folder);
 
   WorldOptions world_options;
   world_options.method = method == "closest" ? DepthMethod::kClosest : DepthMethod::kConsistent;
   world_options.threads = options.threads;
   world_options.timestep = dt_ms * 1e-3;
+  // a bad scene is reported here, at the first run, before it writes anything
   std::unique_ptr<World> world = World::Load(options.scene, world_options);
+  const std::filesystem::path folder = out / row.folder;
+  std::filesystem::create_directories(folder);
   RolloutMetrics metrics(*world);
   const long steps = std::max(1L, std::lround(options.duration / world->timestep()));
 
@@ -282,7 +283,6 @@ void RunCompare(CompareOptions options) {
   std::error_code error;
   std::filesystem::create_directories(out, error);
   if (error) throw Error(options.out + ": cannot create the output folder: " + error.message());
-  World::Load(options.scene);  // report a bad scene before the first run
 
   CatchInterrupt();
   std::printf("%s: %zu runs of %g s into %s/\n", options.scene.c_str(),

@@ -30,10 +30,7 @@ double MaxSpeed(const World& world) {
   }
   for (int b = 1; b < world.num_rigid_bodies(); ++b) {
     if (world.RigidBodyIsStatic(b)) continue;
-    speed = std::max(speed, (world.RigidBodyLinearVelocity(b) +
-                             world.RigidBodyAngularVelocity(b).cross(
-                                 world.RigidBodyCenterOfMass(b) - world.RigidBodyPosition(b)))
-                                .norm());
+    speed = std::max(speed, world.RigidBodyPointVelocity(b, world.RigidBodyCenterOfMass(b)).norm());
   }
   return speed;
 }
@@ -68,9 +65,7 @@ Eigen::Vector3d RolloutMetrics::CenterVelocity(const World& world, int object) c
   }
   const int b = object - num_deformables_;
   if (static_[object]) return Eigen::Vector3d::Zero();
-  return world.RigidBodyLinearVelocity(b) +
-         world.RigidBodyAngularVelocity(b).cross(world.RigidBodyCenterOfMass(b) -
-                                                 world.RigidBodyPosition(b));
+  return world.RigidBodyPointVelocity(b, world.RigidBodyCenterOfMass(b));
 }
 
 bool RolloutMetrics::Flipped(const World& world, int a, int b, const Episode& episode) const {

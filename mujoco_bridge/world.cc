@@ -380,7 +380,7 @@ int World::DeformableIndex(const std::string& name) const {
   return -1;
 }
 
-Eigen::Vector3d World::PointVelocity(int body, const Eigen::Vector3d& p) const {
+Eigen::Vector3d World::RigidBodyPointVelocity(int body, const Eigen::Vector3d& p) const {
   if (body <= 0) return Eigen::Vector3d::Zero();
   double velocity[6];  // angular, then linear at the body origin xpos, world frame
   mj_objectVelocity(model_, data_, mjOBJ_BODY, body, velocity, 0);
@@ -446,7 +446,7 @@ void World::AddGeomContacts() {
     ContactPoint contact;
     contact.body_a = i;
     contact.vertex_a = v;
-    contact.velocity_b = PointVelocity(body, p);
+    contact.velocity_b = RigidBodyPointVelocity(body, p);
     contact.mass_b = body > 0 ? m->body_mass[body] : 0.0;
     contact.depth = depth;
     contact.direction = direction;
@@ -522,7 +522,7 @@ void World::CollectContacts() {
       const Proxy& proxy = *proxies_[r.object - num_deformables];
       rigid = proxy.body;
       Eigen::Vector3d p = proxy.positions.row(r.vertex).transpose();
-      contact.velocity_a = PointVelocity(proxy.body, p);
+      contact.velocity_a = RigidBodyPointVelocity(proxy.body, p);
       contact.mass_a = model_->body_mass[proxy.body];
       contact.stiffness = kappa_[r.penetrated] * proxy.areas[r.vertex];
       contact.friction = std::max(friction_[r.penetrated], proxy.friction);
@@ -536,7 +536,7 @@ void World::CollectContacts() {
       const Proxy& proxy = *proxies_[r.penetrated - num_deformables];
       rigid = proxy.body;
       Eigen::Vector3d p = bodies_[r.object]->positions().row(r.vertex).transpose();
-      contact.velocity_b = PointVelocity(proxy.body, p);
+      contact.velocity_b = RigidBodyPointVelocity(proxy.body, p);
       contact.mass_b = model_->body_mass[proxy.body];
       contact.friction = std::max(contact.friction, proxy.friction);
     }
@@ -681,7 +681,7 @@ Eigen::Vector3d World::LinearMomentum() const {
   for (const auto& body : bodies_) p += body->LinearMomentum();
   for (int b = 1; b < model_->nbody; ++b) {
     Eigen::Vector3d com = Eigen::Map<const Eigen::Vector3d>(data_->xipos + 3 * b);
-    p += model_->body_mass[b] * PointVelocity(b, com);
+    p += model_->body_mass[b] * RigidBodyPointVelocity(b, com);
   }
   return p;
 }

@@ -135,6 +135,9 @@ class World {
   // is welded to the world (never moves).
   Eigen::Vector3d RigidBodyCenterOfMass(int body) const;
   bool RigidBodyIsStatic(int body) const;
+  // Velocity of the world point p_W moving with a MuJoCo body (zero for the
+  // world body), world frame, m/s.
+  Eigen::Vector3d RigidBodyPointVelocity(int body, const Eigen::Vector3d& p_W) const;
 
   // Totals over deformables and MuJoCo bodies (world frame).
   Eigen::Vector3d LinearMomentum() const;
@@ -157,7 +160,6 @@ class World {
   // for every deformable vertex inside a primitive geom without a proxy
   void ForEachGeomPenetration(
       const std::function<void(int, int, int, double, const Eigen::Vector3d&)>& visit) const;
-  Eigen::Vector3d PointVelocity(int body, const Eigen::Vector3d& p) const;
   void AddRigidForce(int body, const Eigen::Vector3d& point, const Eigen::Vector3d& force);
 
   SceneSpec scene_;
