@@ -8,6 +8,11 @@
 
 namespace tetcosim {
 
+// A point is inside a tetrahedron when its barycentric coordinates are all
+// at least -kBarycentricTolerance: a point on a face shared by two
+// tetrahedra is then inside at least one of them despite rounding.
+constexpr double kBarycentricTolerance = 1e-12;
+
 // Barycentric coordinates of p in the tetrahedron (a, b, c, d):
 // p = l0 a + l1 b + l2 c + l3 d with l0 + l1 + l2 + l3 = 1. Returns false for
 // a degenerate tetrahedron (zero volume).

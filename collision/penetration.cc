@@ -195,7 +195,8 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
   {
     std::vector<Hit>& found = thread_hits_[omp_get_thread_num()];
 #pragma omp for schedule(dynamic, 256)
-    for (int gt = 0; gt < (any_deformable ? num_tets : 0); ++gt) {
+    // (no vertex in the box of a partner object: nothing can be inside)
+    for (int gt = 0; gt < (any_deformable && num_hashed > 0 ? num_tets : 0); ++gt) {
       int b = static_cast<int>(
                   std::upper_bound(tet_offset_storage.begin(), tet_offset_storage.end(), gt) -
                   tet_offset_storage.begin()) -
@@ -222,7 +223,10 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
         if ((p.array() < lo.array()).any() || (p.array() > hi.array()).any()) return;
         Eigen::Vector4d l;
         if (!TetBarycentric(corner[0], corner[1], corner[2], corner[3], p, l)) return;
-        if (l.minCoeff() >= 0.0) found.push_back({g, b, t, l});
+        // (kBarycentricTolerance: a vertex on a face shared by two tets is
+        // inside both in exact arithmetic, but rounding may put it just
+        // outside each; the deepest tet is kept below)
+        if (l.minCoeff() >= -kBarycentricTolerance) found.push_back({g, b, t, l});
       };
       Eigen::Vector3i cell_lo = hash_.CellOf(lo);
       Eigen::Vector3i cell_hi = hash_.CellOf(hi);

@@ -22,6 +22,7 @@
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+#include <array>
 
 namespace tetcosim {
 
@@ -30,10 +31,29 @@ namespace tetcosim {
 // back to the gradient step of Muller, Bender, Chentanez and Macklin ("A
 // Robust Method to Extract the Rotational Part of Deformations", MIG 2016)
 // where the Newton step is not defined (inverted or degenerate A). Stops
-// when the update angle is below `tolerance` radians or after
-// `max_iterations`. Always returns a proper rotation.
+// once the rotation's estimated error is below `tolerance` radians: right
+// after a Newton step of angle a with a^2 < tolerance (quadratic
+// convergence: the next step would be about a^2), or when the next Newton
+// step would be below tolerance^2 (a gradient step below tolerance), or
+// after `max_iterations`. Always returns a proper rotation.
 Eigen::Matrix3d ExtractRotation(const Eigen::Matrix3d& A, Eigen::Quaterniond& q,
                                 int max_iterations = 20, double tolerance = 1e-12);
+
+// Four elements at once, one per SIMD lane (Eigen packs an Array4d into
+// AVX or SSE2 registers), for the element loops.
+using Lanes = Eigen::Array4d;
+using LaneMask = Eigen::Array<bool, 4, 1>;
+using Lanes3x3 = std::array<std::array<Lanes, 3>, 3>;  // [row][column]
+using LaneQuaternion = std::array<Lanes, 4>;           // w, x, y, z
+
+// ExtractRotation lane by lane: the same iteration, with the same stopping
+// rules per lane (a lane that has stopped no longer changes while others
+// iterate, so a lane's result does not depend on the other lanes). A lane
+// whose update would turn by more than 0.1 rad (no small-angle update)
+// is redone by the scalar ExtractRotation from its warm start. Agrees with
+// ExtractRotation lane by lane to rounding.
+Lanes3x3 ExtractRotations(const Lanes3x3& A, LaneQuaternion& q, int max_iterations,
+                          double tolerance);
 
 // Shape-function gradients b_0..b_3 (rows) of a tetrahedron at rest.
 Eigen::Matrix<double, 4, 3> ShapeGradients(const Eigen::Vector3d X[4]);

@@ -1,5 +1,6 @@
 #include "deformable/coupled_step.h"
 
+#include <algorithm>
 #include <cmath>
 
 namespace tetcosim {
@@ -118,28 +119,36 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
       z.segment<3>(3 * static_cast<Eigen::Index>(i)) =
           blocks[i] * r.segment<3>(3 * static_cast<Eigen::Index>(i));
   };
-  Eigen::VectorXd Av(n), Adelta(n), r(n), z(n), p(n), q(n);
-  multiply(v, Av);
-  Eigen::VectorXd rhs = b - Av;
-  filter(rhs);
-  const double rhs_norm = rhs.norm();
-  multiply(delta, Adelta);
-  r = b - Av - Adelta;
+  // the tolerance is relative to this step's impulse, b - (1 + dt alpha) M v
+  // (what the forces add to the momentum), which needs no product with A;
+  // floored at a millionth of the momentum for a body on which nothing acts
+  Eigen::VectorXd impulse(n), momentum(n);
+  for (int k = 0; k < num_bodies; ++k)
+    bodies[k]->MultiplyMass(v.data() + offset[k], momentum.data() + offset[k]);
+  impulse = b - momentum;
+  filter(impulse);
+  filter(momentum);
+  const double reference = std::max(impulse.norm(), 1e-6 * momentum.norm());
+  // one product for the warm start v + dv: A v+ is tracked through the
+  // iterations, so that the final residual needs no extra product
+  Eigen::VectorXd v_new = v + delta, Av_new(n), r(n), z(n), p(n), q(n);
+  multiply(v_new, Av_new);
+  r = b - Av_new;
   filter(r);
   precondition(r, z);
   filter(z);
   p = z;
   double rz = r.dot(z);
   CoupledStepReport report;
-  const double threshold = settings.cg_tolerance * rhs_norm;
+  const double threshold = settings.cg_tolerance * reference;
   int iteration = 0;
   while (r.norm() > threshold && iteration < settings.cg_max_iterations) {
     multiply(p, q);              // p is zero on pinned DoFs
     const double pq = p.dot(q);  // = p^T A p (filtering q would not change it)
     if (!(pq > 0.0)) break;      // not positive definite along p (or NaN): stop
     const double alpha = rz / pq;
-    delta += alpha * p;
-    Adelta += alpha * q;
+    v_new += alpha * p;
+    Av_new += alpha * q;
     filter(q);
     r -= alpha * q;
     precondition(r, z);
@@ -150,10 +159,9 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     ++iteration;
   }
   report.iterations = iteration;
-  report.residual = rhs_norm > 0.0 ? r.norm() / rhs_norm : 0.0;
+  report.residual = reference > 0.0 ? r.norm() / reference : 0.0;
 
   // the forces actually integrated, and the pin residuals
-  const Eigen::VectorXd v_new = v + delta;
   for (size_t c = 0; c < contacts.size(); ++c) {
     const Coupling& coupling = couplings[c];
     const Eigen::Vector3d Jv_new = coupling.Jv(v_new);
@@ -161,7 +169,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
                         dt * linear[c].stiffness * (Jv_new + linear[c].rigid_velocity) -
                         linear[c].damping * (Jv_new - coupling.Jv(v));
   }
-  const Eigen::VectorXd residual = Av + Adelta - b;  // A v+ - b
+  const Eigen::VectorXd residual = Av_new - b;
   for (int k = 0; k < num_bodies; ++k) {
     const int size = offset[k + 1] - offset[k];
     StepReport body_report = bodies[k]->FinishStep(

@@ -11,25 +11,47 @@ namespace tetcosim {
 
 namespace {
 
-// Calls visit(t) for every tetrahedron t: in mesh order on one thread
-// (memory locality); with more, one colour at a time, in parallel within a
-// colour. No two elements of a colour share a vertex, so a visit may scatter
-// into its vertices without races, and the summation order is fixed for any
-// thread count above one. The last colour may hold tets that share
-// vertices: it runs serially.
+// Calls visit(k, batch) for every batch of up to four tetrahedra
+// (FemModel::ElementBatch): in mesh order on one thread (memory locality);
+// with more, one colour at a time, in parallel within a colour. No two
+// elements of a colour share a vertex, so a visit may scatter into its
+// vertices without races, and the summation order is fixed for any thread
+// count above one. The last colour may hold tets that share vertices: it
+// runs serially. k indexes model.serial_batches() on one thread, else
+// model.colored_batches().
 template <typename Visit>
-void ForEachElement(const FemModel& model, int num_threads, const Visit& visit) {
-  const bool threaded = num_threads > 1;
-  const std::vector<int>& colored = model.colored_tets();
-  const std::vector<int>& color_offsets = model.color_offsets();
-  const int num_colors = threaded ? static_cast<int>(color_offsets.size()) - 1 : 1;
-  for (int color = 0; color < num_colors; ++color) {
-    const bool parallel = threaded && color < 63;
-    const int begin = threaded ? color_offsets[color] : 0;
-    const int end = threaded ? color_offsets[color + 1] : model.num_tets();
-#pragma omp parallel for num_threads(num_threads) schedule(static) if (parallel)
-    for (int k = begin; k < end; ++k) visit(threaded ? colored[k] : k);
+void ForEachBatch(const FemModel& model, int num_threads, const Visit& visit) {
+  if (num_threads <= 1) {
+    const std::vector<ElementBatch>& batches = model.serial_batches();
+    for (int k = 0; k < static_cast<int>(batches.size()); ++k) visit(k, batches[k]);
+    return;
   }
+  const std::vector<ElementBatch>& batches = model.colored_batches();
+  const std::vector<int>& offsets = model.color_batch_offsets();
+  for (int color = 0; color + 1 < static_cast<int>(offsets.size()); ++color) {
+    const bool parallel = color < 63;
+#pragma omp parallel for num_threads(num_threads) schedule(static) if (parallel)
+    for (int k = offsets[color]; k < offsets[color + 1]; ++k) visit(k, batches[k]);
+  }
+}
+
+// lane by lane: D[r][j] = (x_{j+1} - x_0)[r] for the tets of a batch (zero
+// in unused lanes)
+inline Lanes3x3 GatherEdges(const double* x, const Tets& tets, const ElementBatch& batch) {
+  static constexpr double kZero[3] = {0.0, 0.0, 0.0};
+  const double* p[4][4];  // [lane][vertex]
+  for (int lane = 0; lane < 4; ++lane) {
+    const int t = batch.tets[lane];
+    for (int i = 0; i < 4; ++i) p[lane][i] = t < 0 ? kZero : x + 3 * tets(t, i);
+  }
+  Lanes3x3 D;
+  for (int j = 0; j < 3; ++j) {
+    for (int r = 0; r < 3; ++r) {
+      D[r][j] = Lanes(p[0][j + 1][r], p[1][j + 1][r], p[2][j + 1][r], p[3][j + 1][r]) -
+                Lanes(p[0][0][r], p[1][0][r], p[2][0][r], p[3][0][r]);
+    }
+  }
+  return D;
 }
 
 }  // namespace
@@ -114,61 +136,111 @@ void DeformableBody::Assemble(const StepSettings& settings, bool matrix) {
   assembled_ = matrix;
   mass_scale_ = mass_scale;
   num_threads_ = settings.num_threads;
-  rotated_gradients_.resize(model.num_tets());
-  element_scale_.resize(model.num_tets());
+  const std::vector<ElementBatch>& batches =
+      num_threads_ > 1 ? model.colored_batches() : model.serial_batches();
+  batch_systems_.resize(batches.size());
   diagonal_blocks_.assign(model.num_vertices(), Eigen::Matrix3d::Zero());
 
-  // element loop (ForEachElement: deterministic for any thread count)
-  ForEachElement(model, settings.num_threads, [&](int t) {
-    const auto tet = mesh.tets().row(t);
-    const Eigen::Matrix<double, 4, 3>& grad = model.gradients()[t];
-    Eigen::Vector3d x[4];
-    for (int i = 0; i < 4; ++i) x[i] = x_.row(tet[i]).transpose();
-    const Eigen::Matrix3d F = DeformationGradient(grad, x);
-    const Eigen::Matrix3d R =
-        ExtractRotation(F, rotations_[t], settings.rotation_iterations, 1e-10);
-    const double volume = mesh.rest_volumes()[t];
-    // f_i = -V P b_i
-    const Eigen::Matrix3d VP = volume * CorotatedStress(F, R, mu, lambda);
+  // element loop, four elements at a time (ForEachBatch: deterministic for
+  // any thread count; lanes scatter in order)
+  ForEachBatch(model, num_threads_, [&](int k, const ElementBatch& batch) {
+    // gather: edges x_j - x_0, rest gradients b_1..b_3 (b_0 = -(b_1 + b_2 +
+    // b_3)), volumes, warm starts
+    const Lanes3x3 D = GatherEdges(x_.data(), mesh.tets(), batch);
+    Lanes3x3 grad;  // grad[j][c] = (b_{j+1})_c
+    for (auto& row : grad) row.fill(Lanes::Zero());
+    Lanes volume = Lanes::Zero();
+    LaneQuaternion q = {Lanes::Ones(), Lanes::Zero(), Lanes::Zero(), Lanes::Zero()};
+    for (int lane = 0; lane < 4; ++lane) {
+      const int t = batch.tets[lane];
+      if (t < 0) continue;
+      const Eigen::Matrix<double, 4, 3>& b = model.gradients()[t];
+      for (int j = 0; j < 3; ++j) {
+        for (int c = 0; c < 3; ++c) grad[j][c][lane] = b(j + 1, c);
+      }
+      volume[lane] = mesh.rest_volumes()[t];
+      const Eigen::Quaterniond& rotation = rotations_[t];
+      q[0][lane] = rotation.w();
+      q[1][lane] = rotation.x();
+      q[2][lane] = rotation.y();
+      q[3][lane] = rotation.z();
+    }
+    // F = sum_j (x_j - x_0) b_j^T, and its rotation
+    Lanes3x3 F;
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c)
+        F[r][c] = D[r][0] * grad[0][c] + D[r][1] * grad[1][c] + D[r][2] * grad[2][c];
+    }
+    const Lanes3x3 R =
+        ExtractRotations(F, q, settings.rotation_iterations, settings.rotation_tolerance);
+    // impulse of the elastic forces, -dt V P b_i, with
+    // P = 2 mu (F - R) + lambda tr(R^T F - I) R
+    Lanes trace = -3.0 * Lanes::Ones();
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) trace += R[r][c] * F[r][c];
+    }
+    Lanes3x3 P;  // -dt V P
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c)
+        P[r][c] = (-dt * volume) * (2.0 * mu * (F[r][c] - R[r][c]) + lambda * trace * R[r][c]);
+    }
+    // c_j = R b_j (C[r][j]) and the impulses f_j (f[j][r]), j = 1..3
+    Lanes3x3 C, f;
+    for (int r = 0; r < 3; ++r) {
+      for (int j = 0; j < 3; ++j) {
+        C[r][j] = R[r][0] * grad[j][0] + R[r][1] * grad[j][1] + R[r][2] * grad[j][2];
+        f[j][r] = P[r][0] * grad[j][0] + P[r][1] * grad[j][1] + P[r][2] * grad[j][2];
+      }
+    }
+    BatchSystem& system = batch_systems_[k];
+    system.c = C;
+    const Lanes s = stiffness_scale * volume;
+    system.mu_scale = s * mu;
+    system.lambda_scale = s * lambda;
+    // K_ii = s V [(lambda + mu) c_i c_i^T + mu |c_i|^2 I] for the
+    // preconditioner, upper triangle (b_i . b_i = c_i . c_i)
+    std::array<std::array<Lanes, 6>, 4> diagonal;
     for (int i = 0; i < 4; ++i) {
-      b_.segment<3>(3 * tet[i]).noalias() -= dt * VP * grad.row(i).transpose();
+      std::array<Lanes, 3> ci;
+      for (int r = 0; r < 3; ++r)
+        ci[r] = i == 0 ? Lanes(-(C[r][0] + C[r][1] + C[r][2])) : C[r][i - 1];
+      const Lanes a = s * (lambda + mu);
+      const Lanes d = s * mu * (ci[0] * ci[0] + ci[1] * ci[1] + ci[2] * ci[2]);
+      diagonal[i] = {a * ci[0] * ci[0] + d, a * ci[0] * ci[1], a * ci[0] * ci[2],
+                     a * ci[1] * ci[1] + d, a * ci[1] * ci[2], a * ci[2] * ci[2] + d};
     }
-    // K_ij = V [lambda c_i c_j^T + mu c_j c_i^T + mu (b_i . b_j) I], c_i = R b_i;
-    // K_ji = K_ij^T
-    const Eigen::Matrix<double, 4, 3> c = grad * R.transpose();
-    const double s = stiffness_scale * volume;
-    rotated_gradients_[t] = c;
-    element_scale_[t] = s;
-    // K_ii, for the preconditioner (b_i . b_i = c_i . c_i)
-    for (int a = 0; a < 4; ++a) {
-      Eigen::Matrix3d& block = diagonal_blocks_[tet[a]];
-      block.noalias() += (s * (lambda + mu)) * c.row(a).transpose() * c.row(a);
-      block.diagonal().array() += s * mu * c.row(a).squaredNorm();
-    }
-    if (!matrix) return;
-    const std::array<int, 16>& slots = model.element_slots()[t];
-    for (int a = 0; a < 4; ++a) {
-      const int row_a = row_start[3 * tet[a]];
-      const int length_a = row_start[3 * tet[a] + 1] - row_a;
-      for (int bb = a; bb < 4; ++bb) {
-        Eigen::Matrix3d block = (s * lambda) * c.row(a).transpose() * c.row(bb) +
-                                (s * mu) * c.row(bb).transpose() * c.row(a);
-        block.diagonal().array() += s * mu * grad.row(a).dot(grad.row(bb));
-        double* entry = values + row_a + slots[4 * a + bb];
-        for (int r = 0; r < 3; ++r, entry += length_a) {
-          entry[0] += block(r, 0);
-          entry[1] += block(r, 1);
-          entry[2] += block(r, 2);
+    // scatter, lane by lane in order
+    for (int lane = 0; lane < 4; ++lane) {
+      const int t = batch.tets[lane];
+      if (t < 0) continue;
+      const auto tet = mesh.tets().row(t);
+      rotations_[t] = Eigen::Quaterniond(q[0][lane], q[1][lane], q[2][lane], q[3][lane]);
+      double* b0 = b_.data() + 3 * tet[0];
+      for (int j = 0; j < 3; ++j) {
+        double* bj = b_.data() + 3 * tet[j + 1];
+        for (int r = 0; r < 3; ++r) bj[r] += f[j][r][lane];
+      }
+      for (int r = 0; r < 3; ++r) b0[r] -= f[0][r][lane] + f[1][r][lane] + f[2][r][lane];
+      for (int i = 0; i < 4; ++i) {
+        Eigen::Matrix3d& block = diagonal_blocks_[tet[i]];
+        const std::array<Lanes, 6>& u = diagonal[i];
+        block(0, 0) += u[0][lane];
+        block(0, 1) += u[1][lane];
+        block(0, 2) += u[2][lane];
+        block(1, 0) += u[1][lane];
+        block(1, 1) += u[3][lane];
+        block(1, 2) += u[4][lane];
+        block(2, 0) += u[2][lane];
+        block(2, 1) += u[4][lane];
+        block(2, 2) += u[5][lane];
+      }
+      if (matrix) {
+        Eigen::Matrix<double, 4, 3> c;  // rows c_i
+        for (int j = 0; j < 3; ++j) {
+          for (int r = 0; r < 3; ++r) c(j + 1, r) = C[r][j][lane];
         }
-        if (bb == a) continue;
-        const int row_b = row_start[3 * tet[bb]];
-        const int length_b = row_start[3 * tet[bb] + 1] - row_b;
-        double* mirror = values + row_b + slots[4 * bb + a];
-        for (int r = 0; r < 3; ++r, mirror += length_b) {
-          mirror[0] += block(0, r);
-          mirror[1] += block(1, r);
-          mirror[2] += block(2, r);
-        }
+        c.row(0) = -(c.row(1) + c.row(2) + c.row(3));
+        AddElementMatrix(t, c, s[lane], values);
       }
     }
   });
@@ -185,33 +257,98 @@ void DeformableBody::Assemble(const StepSettings& settings, bool matrix) {
   }
 }
 
+// values += s K_e at element t's slots, with the rows c_i = R b_i (4 x 3):
+// K_ij = lambda c_i c_j^T + mu c_j c_i^T + mu (b_i . b_j) I, K_ji = K_ij^T
+void DeformableBody::AddElementMatrix(int t, const Eigen::Matrix<double, 4, 3>& c, double s,
+                                      double* values) const {
+  const FemModel& model = *model_;
+  const auto tet = model.mesh().tets().row(t);
+  const Eigen::Matrix<double, 4, 3>& grad = model.gradients()[t];
+  const std::array<int, 16>& slots = model.element_slots()[t];
+  const std::vector<int>& row_start = model.row_start();
+  const double mu = model.mu();
+  const double lambda = model.lambda();
+  for (int a = 0; a < 4; ++a) {
+    const int row_a = row_start[3 * tet[a]];
+    const int length_a = row_start[3 * tet[a] + 1] - row_a;
+    for (int bb = a; bb < 4; ++bb) {
+      Eigen::Matrix3d block = (s * lambda) * c.row(a).transpose() * c.row(bb) +
+                              (s * mu) * c.row(bb).transpose() * c.row(a);
+      block.diagonal().array() += s * mu * grad.row(a).dot(grad.row(bb));
+      double* entry = values + row_a + slots[4 * a + bb];
+      for (int r = 0; r < 3; ++r, entry += length_a) {
+        entry[0] += block(r, 0);
+        entry[1] += block(r, 1);
+        entry[2] += block(r, 2);
+      }
+      if (bb == a) continue;
+      const int row_b = row_start[3 * tet[bb]];
+      const int length_b = row_start[3 * tet[bb] + 1] - row_b;
+      double* mirror = values + row_b + slots[4 * bb + a];
+      for (int r = 0; r < 3; ++r, mirror += length_b) {
+        mirror[0] += block(0, r);
+        mirror[1] += block(1, r);
+        mirror[2] += block(2, r);
+      }
+    }
+  }
+}
+
 // y = (1 + dt alpha) M x + sum_e s V K_e x_e with, for linear tets and
 // c_i = R b_i, K_e x_e at vertex i = (lambda tr(G) I + mu (G + G^T)) c_i,
-// G = sum_j x_j c_j^T: the co-rotated linear stress of the "strain" G
+// G = sum_j x_j c_j^T: the co-rotated linear stress of the "strain" G.
+// Since c_0 = -(c_1 + c_2 + c_3): G = sum_{j>0} (x_j - x_0) c_j^T, and
+// vertex 0 receives minus the sum of the others
 void DeformableBody::MultiplyElementWise(const double* x, double* y) const {
   const FemModel& model = *model_;
   const TetMesh& mesh = model.mesh();
-  const double mu = model.mu();
-  const double lambda = model.lambda();
-  const Eigen::VectorXd& masses = model.masses();
-  for (int v = 0; v < model.num_vertices(); ++v) {
+  MultiplyMass(x, y);
+  // element loop, four at a time, ordered as in Assemble
+  ForEachBatch(model, num_threads_, [&](int k, const ElementBatch& batch) {
+    const BatchSystem& system = batch_systems_[k];
+    const Lanes3x3& C = system.c;
+    const Lanes3x3 D = GatherEdges(x, mesh.tets(), batch);
+    Lanes3x3 G;  // sum_j D_j c_j^T
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c)
+        G[r][c] = D[r][0] * C[c][0] + D[r][1] * C[c][1] + D[r][2] * C[c][2];
+    }
+    const Lanes lambda_trace = system.lambda_scale * (G[0][0] + G[1][1] + G[2][2]);
+    Lanes3x3 S;  // mu s V (G + G^T) + lambda s V tr(G) I
+    for (int r = 0; r < 3; ++r) {
+      for (int c = r; c < 3; ++c) {
+        S[r][c] = system.mu_scale * (G[r][c] + G[c][r]);
+        S[c][r] = S[r][c];
+      }
+      S[r][r] += lambda_trace;
+    }
+    Lanes3x3 f;  // f[j][r] = (S c_j)_r, vertex j + 1
+    for (int j = 0; j < 3; ++j) {
+      for (int r = 0; r < 3; ++r)
+        f[j][r] = S[r][0] * C[0][j] + S[r][1] * C[1][j] + S[r][2] * C[2][j];
+    }
+    for (int lane = 0; lane < 4; ++lane) {
+      const int t = batch.tets[lane];
+      if (t < 0) continue;
+      const auto tet = mesh.tets().row(t);
+      double* y0 = y + 3 * tet[0];
+      for (int j = 0; j < 3; ++j) {
+        double* yj = y + 3 * tet[j + 1];
+        for (int r = 0; r < 3; ++r) yj[r] += f[j][r][lane];
+      }
+      for (int r = 0; r < 3; ++r) y0[r] -= f[0][r][lane] + f[1][r][lane] + f[2][r][lane];
+    }
+  });
+}
+
+void DeformableBody::MultiplyMass(const double* x, double* y) const {
+  const Eigen::VectorXd& masses = model_->masses();
+  for (int v = 0; v < model_->num_vertices(); ++v) {
     const double m = mass_scale_ * masses[v];
     y[3 * v] = m * x[3 * v];
     y[3 * v + 1] = m * x[3 * v + 1];
     y[3 * v + 2] = m * x[3 * v + 2];
   }
-  // element loop, ordered as in Assemble
-  ForEachElement(model, num_threads_, [&](int t) {
-    const auto tet = mesh.tets().row(t);
-    const Eigen::Matrix<double, 4, 3>& c = rotated_gradients_[t];
-    Eigen::Matrix3d G = Eigen::Matrix3d::Zero();
-    for (int j = 0; j < 4; ++j)
-      G.noalias() += Eigen::Map<const Eigen::Vector3d>(x + 3 * tet[j]) * c.row(j);
-    Eigen::Matrix3d S = (mu * element_scale_[t]) * (G + G.transpose());
-    S.diagonal().array() += lambda * element_scale_[t] * G.trace();
-    for (int i = 0; i < 4; ++i)
-      Eigen::Map<Eigen::Vector3d>(y + 3 * tet[i]).noalias() += S * c.row(i).transpose();
-  });
 }
 
 void DeformableBody::MultiplySystem(const double* x, double* y) const {

@@ -24,6 +24,7 @@
 #include <string>
 #include <vector>
 
+#include "deformable/corotational.h"
 #include "deformable/fem_model.h"
 
 namespace tetcosim {
@@ -44,14 +45,21 @@ struct StepSettings {
   double dt = 1e-3;                                        // s, > 0
   Eigen::Vector3d gravity = Eigen::Vector3d(0, 0, -9.81);  // m/s^2
   LinearSolver solver = LinearSolver::kConjugateGradient;
-  // CG stops at this residual relative to the right-hand side of the system
-  // for the velocity change, A dv = b - A v.
+  // CG stops at this residual (of A v+ = b, in N s) relative to the step's
+  // impulse b - (1 + dt alpha) M v: what the forces change the momentum by.
   double cg_tolerance = 1e-6;
   int cg_max_iterations = 1000;
-  // Polar-decomposition iterations per element and step (warm-started; each
-  // stops once the rotation changes by less than 1e-10 rad). Stopping short
-  // of convergence leaves a lagged rotation that injects energy: keep >= 8.
+  // Polar decomposition per element and step (ExtractRotation, warm-started
+  // from the last step's rotation): at most this many iterations, stopping
+  // once the estimated error of the rotation is below rotation_tolerance
+  // (radians). A Newton step of angle a leaves an error of about a^2, so
+  // with 1e-8 every element whose rotation changed by less than 1e-4 rad
+  // in the step takes one step; the elastic forces are then off by about
+  // 2 mu V |b_i| 1e-8 (a stress error of 2e-8 mu). Stopping far short of
+  // convergence leaves a lagged rotation that injects energy: keep
+  // rotation_iterations >= 8.
   int rotation_iterations = 20;
+  double rotation_tolerance = 1e-8;
   int num_threads = 1;  // for the element loop and the solver
   // How the conjugate-gradient solve applies the system matrix A (the
   // Cholesky solver always assembles it). Assembling costs about as much as
@@ -122,6 +130,8 @@ class DeformableBody {
   // share their columns (one index and three contiguous x per neighbour);
   // else element by element.
   void MultiplySystem(const double* x, double* y) const;
+  // y = (1 + dt alpha) M x: the mass part of A.
+  void MultiplyMass(const double* x, double* y) const;
   // The 3 x 3 diagonal block of A for vertex v (for preconditioners).
   const Eigen::Matrix3d& system_diagonal_block(int v) const { return diagonal_blocks_[v]; }
   // Velocity that takes pinned vertex pinned_vertices()[i] to its target.
@@ -152,6 +162,8 @@ class DeformableBody {
   // with `matrix`, the sparse A
   void Assemble(const StepSettings& settings, bool matrix);
   void MultiplyElementWise(const double* x, double* y) const;
+  void AddElementMatrix(int t, const Eigen::Matrix<double, 4, 3>& c, double s,
+                        double* values) const;
   void ApplyPins(const StepSettings& settings);
   void Solve(StepReport& report);
 
@@ -170,10 +182,16 @@ class DeformableBody {
   // the linear system
   bool assembled_ = false;
   int last_iterations_ = 0;  // CG iterations of the last step (kAuto)
-  // per element, for the element-wise product: c_i = R b_i (rows, 4 x 3)
-  // and s V, s = dt beta + dt^2
-  std::vector<Eigen::Matrix<double, 4, 3>> rotated_gradients_;
-  std::vector<double> element_scale_;
+  // per batch of elements (FemModel::ElementBatch, in the order of the
+  // step's thread count), for the element-wise product: c[r][j] =
+  // (R b_{j+1})_r (c_0 = -(c_1 + c_2 + c_3)), and s V mu, s V lambda with
+  // s = dt beta + dt^2
+  struct BatchSystem {
+    Lanes3x3 c;
+    Lanes mu_scale;
+    Lanes lambda_scale;
+  };
+  std::vector<BatchSystem> batch_systems_;
   double mass_scale_ = 1.0;  // 1 + dt alpha
   int num_threads_ = 1;
   std::vector<Eigen::Matrix3d> diagonal_blocks_;  // per vertex

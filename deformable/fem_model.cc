@@ -117,6 +117,24 @@ std::shared_ptr<const FemModel> FemModel::Build(std::shared_ptr<const TetMesh> m
   model->colored_tets_.resize(num_tets);
   std::vector<int> fill(model->color_offsets_.begin(), model->color_offsets_.end() - 1);
   for (int t = 0; t < num_tets; ++t) model->colored_tets_[fill[color[t]]++] = t;
+
+  // batches of four, in mesh order and within each colour
+  auto append_batches = [](const int* tets, int count, std::vector<ElementBatch>& batches) {
+    for (int k = 0; k < count; k += 4) {
+      ElementBatch& batch = batches.emplace_back();
+      for (int lane = 0; lane < 4 && k + lane < count; ++lane) batch.tets[lane] = tets[k + lane];
+    }
+  };
+  std::vector<int> mesh_order(num_tets);
+  for (int t = 0; t < num_tets; ++t) mesh_order[t] = t;
+  append_batches(mesh_order.data(), num_tets, model->serial_batches_);
+  model->color_batch_offsets_.assign(1, 0);
+  for (int c = 0; c < num_colors; ++c) {
+    const int begin = model->color_offsets_[c];
+    append_batches(model->colored_tets_.data() + begin, model->color_offsets_[c + 1] - begin,
+                   model->colored_batches_);
+    model->color_batch_offsets_.push_back(static_cast<int>(model->colored_batches_.size()));
+  }
   return model;
 }
 

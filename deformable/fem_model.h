@@ -14,6 +14,12 @@
 
 namespace tetcosim {
 
+// Up to four tetrahedra processed together, one per SIMD lane
+// (corotational.h's Lanes); unused lanes hold -1.
+struct ElementBatch {
+  std::array<int, 4> tets{-1, -1, -1, -1};
+};
+
 // The area each vertex stands for in contact (#V, m^2): a third of the
 // incident surface triangles' area for surface vertices, (volume share)^(2/3)
 // for interior ones.
@@ -60,6 +66,12 @@ class FemModel {
   // order of the sums stays the same whatever the thread count.
   const std::vector<int>& color_offsets() const { return color_offsets_; }  // #colors + 1
   const std::vector<int>& colored_tets() const { return colored_tets_; }    // #T
+  // The tetrahedra in batches of four: in mesh order (for one thread), and
+  // colour by colour (a batch never spans two colours; batches
+  // color_batch_offsets()[c] up to [c + 1] hold colour c).
+  const std::vector<ElementBatch>& serial_batches() const { return serial_batches_; }
+  const std::vector<ElementBatch>& colored_batches() const { return colored_batches_; }
+  const std::vector<int>& color_batch_offsets() const { return color_batch_offsets_; }
 
  private:
   FemModel() = default;
@@ -79,6 +91,9 @@ class FemModel {
   std::vector<int> diagonal_slot_;
   std::vector<int> color_offsets_;
   std::vector<int> colored_tets_;
+  std::vector<ElementBatch> serial_batches_;
+  std::vector<ElementBatch> colored_batches_;
+  std::vector<int> color_batch_offsets_;
 };
 
 }  // namespace tetcosim

@@ -310,6 +310,8 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
   }
 
   world->ours_.assign(6 * m->nbody, 0.0);
+  world->user_.assign(6 * m->nbody, 0.0);
+  world->written_.assign(6 * m->nbody, 0.0);
   world->accumulated_.assign(6 * m->nbody, 0.0);
   PenetrationOptions penetration;
   penetration.method = options.method.value_or(scene.method);
@@ -560,9 +562,14 @@ void World::Step() {
   constexpr int kBadState[3] = {mjWARN_BADQPOS, mjWARN_BADQVEL, mjWARN_BADQACC};
   int bad_before[3];
   for (int k = 0; k < 3; ++k) bad_before[k] = d->warning[kBadState[k]].number;
-  // the user's part of xfrc_applied: whatever is there beyond what we wrote
-  std::vector<double> user(6 * m->nbody);
-  for (int i = 0; i < 6 * m->nbody; ++i) user[i] = d->xfrc_applied[i] - ours_[i];
+  // the user's part of xfrc_applied: unchanged since we wrote user + ours,
+  // the user's value as kept (exactly: (user + ours) - ours may differ from
+  // user in the last bit, which would drift over many steps); changed,
+  // whatever is there beyond our part
+  for (int i = 0; i < 6 * m->nbody; ++i) {
+    if (d->xfrc_applied[i] != written_[i]) user_[i] = d->xfrc_applied[i] - ours_[i];
+  }
+  const std::vector<double>& user = user_;
 
   Clock::time_point phase = Clock::now();
   mj_step1(m, d);
@@ -651,6 +658,7 @@ void World::Step() {
       // accumulated_ holds force at 0..2 and torque at 3..5, like xfrc_applied
       ours_[6 * b + k] = accumulated_[6 * b + k];
       d->xfrc_applied[6 * b + k] = user[6 * b + k] + ours_[6 * b + k];
+      written_[6 * b + k] = d->xfrc_applied[6 * b + k];
     }
   }
   phase = Clock::now();

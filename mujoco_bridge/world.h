@@ -179,6 +179,8 @@ class World {
   std::vector<ContactPoint> contacts_;
   std::vector<int> contact_rigid_body_;  // per contact: MuJoCo body on the rigid side, or -1
   std::vector<double> ours_;             // nbody x 6, written last step
+  std::vector<double> user_;             // nbody x 6, the user's part of xfrc_applied
+  std::vector<double> written_;          // nbody x 6, xfrc_applied as written last step
   std::vector<double> accumulated_;      // nbody x 6, this step
   std::function<void(World&)> controller_;
   StepSettings step_settings_;

@@ -37,7 +37,7 @@ std::map<std::tuple<int, int, int>, int> BruteForceInside(const TestScene& scene
           Eigen::Vector4d l;
           if (!TetBarycentric(c[0], c[1], c[2], c[3], oa.positions->row(v).transpose(), l))
             continue;
-          if (l.minCoeff() < 0.0) continue;
+          if (l.minCoeff() < -kBarycentricTolerance) continue;
           auto key = std::make_tuple(a, v, b);
           auto it = best.find(key);
           if (it == best.end() || l.minCoeff() > it->second.first) best[key] = {l.minCoeff(), t};

@@ -69,6 +69,82 @@ TEST(Corotational, ExtractRotationIsTheRotationOfTheDeformation) {
   }
 }
 
+// the four-lane version against the scalar one: the same rotations (to
+// rounding) and the same number of steps, lane by lane, for warm starts near
+// and far (the scalar fallback), inverted and degenerate deformations; and a
+// lane's result does not depend on the other lanes (bit for bit)
+TEST(Corotational, ExtractRotationsMatchesTheScalarIterationLaneByLane) {
+  std::mt19937 rng(4);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  std::vector<Eigen::Matrix3d> F;
+  std::vector<Eigen::Quaterniond> q;
+  for (int trial = 0; trial < 64; ++trial) {
+    const Eigen::Matrix3d R0 =
+        Eigen::AngleAxisd(3.0 * u(rng), Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized())
+            .toRotationMatrix();
+    Eigen::Matrix3d S = Eigen::Matrix3d::Identity();
+    for (int i = 0; i < 3; ++i) {
+      for (int j = i; j < 3; ++j) S(i, j) = S(j, i) = (i == j ? 1.0 : 0.0) + 0.2 * u(rng);
+    }
+    if (trial % 8 == 3) S(2, 2) = -0.5;                 // inverted
+    if (trial % 8 == 5) S.row(1) = S.row(0);            // degenerate
+    const double offset = trial % 4 == 0 ? 1.0 : 1e-3;  // far (> 0.1 rad) or near
+    F.push_back(R0 * S);
+    q.emplace_back(R0 * Eigen::AngleAxisd(offset * u(rng), Eigen::Vector3d::UnitY()));
+  }
+  for (double tolerance : {1e-8, 1e-15}) {
+    std::vector<Eigen::Matrix3d> lane_R(F.size());
+    std::vector<Eigen::Quaterniond> lane_q(F.size());
+    for (size_t first = 0; first < F.size(); first += 4) {
+      Lanes3x3 A;
+      LaneQuaternion q4;
+      for (int lane = 0; lane < 4; ++lane) {
+        for (int i = 0; i < 3; ++i) {
+          for (int j = 0; j < 3; ++j) A[i][j][lane] = F[first + lane](i, j);
+        }
+        const Eigen::Quaterniond& start = q[first + lane];
+        q4[0][lane] = start.w();
+        q4[1][lane] = start.x();
+        q4[2][lane] = start.y();
+        q4[3][lane] = start.z();
+      }
+      const Lanes3x3 R = ExtractRotations(A, q4, 20, tolerance);
+      for (int lane = 0; lane < 4; ++lane) {
+        for (int i = 0; i < 3; ++i) {
+          for (int j = 0; j < 3; ++j) lane_R[first + lane](i, j) = R[i][j][lane];
+        }
+        lane_q[first + lane] =
+            Eigen::Quaterniond(q4[0][lane], q4[1][lane], q4[2][lane], q4[3][lane]);
+      }
+    }
+    for (size_t k = 0; k < F.size(); ++k) {
+      Eigen::Quaterniond scalar_q = q[k];
+      const Eigen::Matrix3d R = ExtractRotation(F[k], scalar_q, 20, tolerance);
+      EXPECT_NEAR((lane_R[k] - R).norm(), 0.0, 1e-12) << k << " " << tolerance;
+      EXPECT_NEAR(lane_R[k].determinant(), 1.0, 1e-12) << k;
+      EXPECT_NEAR(lane_q[k].angularDistance(scalar_q), 0.0, 1e-12) << k;
+      // the same element in lane 3 of a batch whose other lanes are the
+      // identity: bit for bit the same
+      Lanes3x3 A;
+      LaneQuaternion q4 = {Lanes::Ones(), Lanes::Zero(), Lanes::Zero(), Lanes::Zero()};
+      for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 3; ++j) A[i][j] = Lanes::Constant(i == j ? 1.0 : 0.0);
+      }
+      for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 3; ++j) A[i][j][3] = F[k](i, j);
+      }
+      q4[0][3] = q[k].w();
+      q4[1][3] = q[k].x();
+      q4[2][3] = q[k].y();
+      q4[3][3] = q[k].z();
+      const Lanes3x3 alone = ExtractRotations(A, q4, 20, tolerance);
+      for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 3; ++j) EXPECT_EQ(alone[i][j][3], lane_R[k](i, j)) << k;
+      }
+    }
+  }
+}
+
 TEST(Corotational, ForcesAreTheNegativeEnergyGradient) {
   const Element e = RestElement();
   std::mt19937 rng(2);
