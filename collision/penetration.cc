@@ -434,26 +434,28 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
         }
       };
       if (object_small_[b]) {
+        // a small object's triangles are all in its list, none in the grid
         for (int entry = object_entry_begin_[b]; entry < object_entry_end_[b]; ++entry) test(entry);
-      }
-      for (int entry : large_triangles_) test(entry);
-      Eigen::Vector3i lo = triangle_hash_.CellOf(segment_lo);
-      Eigen::Vector3i hi = triangle_hash_.CellOf(segment_hi);
-      for (int k = lo.z(); k <= hi.z(); ++k) {
-        for (int j = lo.y(); j <= hi.y(); ++j) {
-          for (int i = lo.x(); i <= hi.x(); ++i) {
-            Eigen::Vector3i cell(i, j, k);
-            triangle_hash_.ForEach(
-                cell,
-                [&](int entry) {
-                  // test each triangle once: in the first cell the
-                  // segment's and the triangle's cell ranges share
-                  Eigen::Vector3i first = lo.cwiseMax(triangle_lo_[entry]);
-                  if (cell == first && (cell.array() <= triangle_hi_[entry].array()).all()) {
-                    test(entry);
-                  }
-                },
-                b + 1);
+      } else {
+        for (int entry : large_triangles_) test(entry);
+        Eigen::Vector3i lo = triangle_hash_.CellOf(segment_lo);
+        Eigen::Vector3i hi = triangle_hash_.CellOf(segment_hi);
+        for (int k = lo.z(); k <= hi.z(); ++k) {
+          for (int j = lo.y(); j <= hi.y(); ++j) {
+            for (int i = lo.x(); i <= hi.x(); ++i) {
+              Eigen::Vector3i cell(i, j, k);
+              triangle_hash_.ForEach(
+                  cell,
+                  [&](int entry) {
+                    // test each triangle once: in the first cell the
+                    // segment's and the triangle's cell ranges share
+                    Eigen::Vector3i first = lo.cwiseMax(triangle_lo_[entry]);
+                    if (cell == first && (cell.array() <= triangle_hi_[entry].array()).all()) {
+                      test(entry);
+                    }
+                  },
+                  b + 1);
+            }
           }
         }
       }
