@@ -11,6 +11,10 @@ namespace tetcosim {
 
 namespace {
 
+// StepSettings::num_threads and ::system_product (kAuto): measured limits
+constexpr int kMinTetsForThreads = 16384;
+constexpr int kMaxTetsToAssemble = 16384;
+
 // Calls visit(k, batch) for every batch of up to four tetrahedra
 // (FemModel::ElementBatch): in mesh order on one thread (memory locality);
 // with more, one colour at a time, in parallel within a colour. No two
@@ -135,7 +139,7 @@ void DeformableBody::Assemble(const StepSettings& settings, bool matrix) {
   b_.setZero();
   assembled_ = matrix;
   mass_scale_ = mass_scale;
-  num_threads_ = settings.num_threads;
+  num_threads_ = model.num_tets() >= kMinTetsForThreads ? std::max(1, settings.num_threads) : 1;
   const std::vector<ElementBatch>& batches =
       num_threads_ > 1 ? model.colored_batches() : model.serial_batches();
   batch_systems_.resize(batches.size());
@@ -504,12 +508,11 @@ StepReport DeformableBody::Step(const StepSettings& settings) {
 
 void DeformableBody::PrepareStep(const StepSettings& settings) {
   Eigen::setNbThreads(std::max(1, settings.num_threads));
-  // kAuto: element-wise products are serial per colour (a fork and join per
-  // colour and product), so with threads the assembled, row-parallel product
-  // wins
+  // kAuto: see StepSettings::system_product
+  const bool threaded = model_->num_tets() >= kMinTetsForThreads && settings.num_threads > 1;
   const bool matrix = settings.system_product == SystemProduct::kAssembled ||
-                      (settings.system_product == SystemProduct::kAuto &&
-                       (last_iterations_ >= 12 || settings.num_threads > 1));
+                      (settings.system_product == SystemProduct::kAuto && last_iterations_ >= 12 &&
+                       (model_->num_tets() <= kMaxTetsToAssemble || threaded));
   Assemble(settings, matrix);
 }
 
