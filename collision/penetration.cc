@@ -3,12 +3,14 @@
 #include <omp.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cassert>
 #include <chrono>
 #include <cmath>
 #include <limits>
 
 #include "collision/geometry.h"
+#include "mesh/parallel_for.h"
 
 namespace tetcosim {
 namespace {
@@ -164,12 +166,11 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
   vertex_cell_.resize(num_vertices);
   vertex_hashed_.resize(num_vertices);
   hash_.Reset(cell_size_, 0);  // sets the cell size for CellOf; sized below
-#pragma omp parallel for num_threads(num_threads) schedule(static)
-  for (int g = 0; g < num_vertices; ++g) {
+  ParallelFor(num_threads, 0, num_vertices, [&](int g) {
     Eigen::Vector3d p = Position(g);
     vertex_hashed_[g] = OverlapsPartner(vertex_object_[g], p, p);
     if (vertex_hashed_[g]) vertex_cell_[g] = hash_.CellOf(p);
-  }
+  });
   int num_hashed = 0;
   for (int g = 0; g < num_vertices; ++g) num_hashed += vertex_hashed_[g];
   hash_.Reset(cell_size_, num_hashed);
@@ -191,65 +192,65 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
   if (static_cast<int>(thread_hits_.size()) < num_threads) thread_hits_.resize(num_threads);
   for (auto& buffer : thread_hits_) buffer.clear();
 
-#pragma omp parallel num_threads(num_threads)
-  {
-    std::vector<Hit>& found = thread_hits_[omp_get_thread_num()];
-#pragma omp for schedule(dynamic, 256)
-    // (no vertex in the box of a partner object: nothing can be inside)
-    for (int gt = 0; gt < (any_deformable && num_hashed > 0 ? num_tets : 0); ++gt) {
-      int b = static_cast<int>(
-                  std::upper_bound(tet_offset_storage.begin(), tet_offset_storage.end(), gt) -
-                  tet_offset_storage.begin()) -
-              1;
-      int t = gt - tet_offset_storage[b];
-      const CollisionObject& object_b = objects[b];
-      const Positions& x = *object_b.positions;
-      const auto tet = object_b.mesh->tets().row(t);
-      Eigen::Vector3d corner[4];
-      for (int i = 0; i < 4; ++i) corner[i] = x.row(tet[i]).transpose();
-      Eigen::Vector3d lo = corner[0].cwiseMin(corner[1]).cwiseMin(corner[2].cwiseMin(corner[3]));
-      Eigen::Vector3d hi = corner[0].cwiseMax(corner[1]).cwiseMax(corner[2].cwiseMax(corner[3]));
-      if (!OverlapsPartner(b, lo, hi)) continue;  // broad phase: nothing can be inside
-      auto test = [&](int g) {
-        int a = vertex_object_[g];
-        if (a == b) {
-          if (!object_b.self_collision) return;
-          int v = g - vertex_offset_[a];
-          if (v == tet[0] || v == tet[1] || v == tet[2] || v == tet[3]) return;
-        } else if (object_b.rigid && objects[a].rigid) {
+  // (no vertex in the box of a partner object: nothing can be inside)
+  const int num_searched = any_deformable && num_hashed > 0 ? num_tets : 0;
+  ParallelFor(
+      num_threads, 0, num_searched,
+      [&](int gt) {
+        std::vector<Hit>& found = thread_hits_[omp_get_thread_num()];
+        int b = static_cast<int>(
+                    std::upper_bound(tet_offset_storage.begin(), tet_offset_storage.end(), gt) -
+                    tet_offset_storage.begin()) -
+                1;
+        int t = gt - tet_offset_storage[b];
+        const CollisionObject& object_b = objects[b];
+        const Positions& x = *object_b.positions;
+        const auto tet = object_b.mesh->tets().row(t);
+        Eigen::Vector3d corner[4];
+        for (int i = 0; i < 4; ++i) corner[i] = x.row(tet[i]).transpose();
+        Eigen::Vector3d lo = corner[0].cwiseMin(corner[1]).cwiseMin(corner[2].cwiseMin(corner[3]));
+        Eigen::Vector3d hi = corner[0].cwiseMax(corner[1]).cwiseMax(corner[2].cwiseMax(corner[3]));
+        if (!OverlapsPartner(b, lo, hi)) return;  // broad phase: nothing can be inside
+        auto test = [&](int g) {
+          int a = vertex_object_[g];
+          if (a == b) {
+            if (!object_b.self_collision) return;
+            int v = g - vertex_offset_[a];
+            if (v == tet[0] || v == tet[1] || v == tet[2] || v == tet[3]) return;
+          } else if (object_b.rigid && objects[a].rigid) {
+            return;
+          }
+          Eigen::Vector3d p = Position(g);
+          if ((p.array() < lo.array()).any() || (p.array() > hi.array()).any()) return;
+          Eigen::Vector4d l;
+          if (!TetBarycentric(corner[0], corner[1], corner[2], corner[3], p, l)) return;
+          // (kBarycentricTolerance: a vertex on a face shared by two tets is
+          // inside both in exact arithmetic, but rounding may put it just
+          // outside each; the deepest tet is kept below)
+          if (l.minCoeff() >= -kBarycentricTolerance) found.push_back({g, b, t, l});
+        };
+        Eigen::Vector3i cell_lo = hash_.CellOf(lo);
+        Eigen::Vector3i cell_hi = hash_.CellOf(hi);
+        if (CellCount(cell_lo, cell_hi) > kMaxTetCells) {
+          for (int g = 0; g < num_vertices; ++g) {
+            if (vertex_hashed_[g]) test(g);
+          }
           return;
         }
-        Eigen::Vector3d p = Position(g);
-        if ((p.array() < lo.array()).any() || (p.array() > hi.array()).any()) return;
-        Eigen::Vector4d l;
-        if (!TetBarycentric(corner[0], corner[1], corner[2], corner[3], p, l)) return;
-        // (kBarycentricTolerance: a vertex on a face shared by two tets is
-        // inside both in exact arithmetic, but rounding may put it just
-        // outside each; the deepest tet is kept below)
-        if (l.minCoeff() >= -kBarycentricTolerance) found.push_back({g, b, t, l});
-      };
-      Eigen::Vector3i cell_lo = hash_.CellOf(lo);
-      Eigen::Vector3i cell_hi = hash_.CellOf(hi);
-      if (CellCount(cell_lo, cell_hi) > kMaxTetCells) {
-        for (int g = 0; g < num_vertices; ++g) {
-          if (vertex_hashed_[g]) test(g);
-        }
-        continue;
-      }
-      for (int k = cell_lo.z(); k <= cell_hi.z(); ++k) {
-        for (int j = cell_lo.y(); j <= cell_hi.y(); ++j) {
-          for (int i = cell_lo.x(); i <= cell_hi.x(); ++i) {
-            Eigen::Vector3i cell(i, j, k);
-            // a bucket holds vertices of every cell hashed to it: keep only
-            // this cell's, which also visits each vertex once per tet
-            hash_.ForEach(cell, [&](int g) {
-              if (vertex_cell_[g] == cell) test(g);
-            });
+        for (int k = cell_lo.z(); k <= cell_hi.z(); ++k) {
+          for (int j = cell_lo.y(); j <= cell_hi.y(); ++j) {
+            for (int i = cell_lo.x(); i <= cell_hi.x(); ++i) {
+              Eigen::Vector3i cell(i, j, k);
+              // a bucket holds vertices of every cell hashed to it: keep only
+              // this cell's, which also visits each vertex once per tet
+              hash_.ForEach(cell, [&](int g) {
+                if (vertex_cell_[g] == cell) test(g);
+              });
+            }
           }
         }
-      }
-    }
-  }
+      },
+      Schedule::kDynamic, 256);
   // merge and sort: the order (and so the result) does not depend on threads
   hits_.clear();
   for (int i = 0; i < num_threads; ++i) {
@@ -381,104 +382,106 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
     crossing_offset_[h + 1] = crossing_offset_[h] + offsets[v + 1] - offsets[v];
   }
   crossings_.resize(crossing_offset_[num_hits]);
-  int edges = 0;
-#pragma omp parallel for num_threads(std::max(1, options_.num_threads)) schedule(dynamic, 64) \
-    reduction(+ : edges)
-  for (int h = 0; h < num_hits; ++h) {
-    const Hit& hit = hits_[h];
-    const int a = vertex_object_[hit.vertex];
-    const int b = hit.penetrated;
-    const int v = hit.vertex - vertex_offset_[a];
-    const TetMesh& mesh_a = *objects[a].mesh;
-    const Positions& x_b = *objects[b].positions;
-    const Triangles& surface_b = objects[b].mesh->surface();
-    const Eigen::Vector3d p = Position(hit.vertex);
-    int slot = crossing_offset_[h];
-    for (int n = mesh_a.adjacency_offsets()[v]; n < mesh_a.adjacency_offsets()[v + 1];
-         ++n, ++slot) {
-      Crossing& crossing = crossings_[slot];
-      crossing.valid = false;
-      const int q_local = mesh_a.adjacency()[n];
-      const int q_global = vertex_offset_[a] + q_local;
-      if (FindHit(q_global, b) >= 0) continue;  // q is inside B too: not an intersection edge
-      ++edges;
-      const Eigen::Vector3d q = Position(q_global);
-      double best_t = std::numeric_limits<double>::infinity();
-      int best_entry = -1;
-      double best_u = 0.0, best_v = 0.0;
-      const Eigen::Vector3d segment_lo = q.cwiseMin(p);
-      const Eigen::Vector3d segment_hi = q.cwiseMax(p);
-      auto test = [&](int entry) {
-        if (triangles_[entry][0] != b) return;
-        if ((triangle_box_lo_[entry].array() > segment_hi.array()).any() ||
-            (segment_lo.array() > triangle_box_hi_[entry].array()).any()) {
-          return;
-        }
-        const int f = triangles_[entry][1];
-        if (a == b) {  // self-collision: the edge's own triangles do not count
-          for (int k = 0; k < 3; ++k) {
-            if (surface_b(f, k) == v || surface_b(f, k) == q_local) return;
-          }
-        }
-        double t, u, w;
-        if (!SegmentTriangle(q, p, x_b.row(surface_b(f, 0)), x_b.row(surface_b(f, 1)),
-                             x_b.row(surface_b(f, 2)), t, u, w)) {
-          return;
-        }
-        // nearest to q; ties broken by entry for determinism
-        if (t < best_t || (t == best_t && entry < best_entry)) {
-          best_t = t;
-          best_entry = entry;
-          best_u = u;
-          best_v = w;
-        }
-      };
-      if (object_small_[b]) {
-        // a small object's triangles are all in its list, none in the grid
-        for (int entry = object_entry_begin_[b]; entry < object_entry_end_[b]; ++entry) test(entry);
-      } else {
-        for (int entry : large_triangles_) test(entry);
-        Eigen::Vector3i lo = triangle_hash_.CellOf(segment_lo);
-        Eigen::Vector3i hi = triangle_hash_.CellOf(segment_hi);
-        for (int k = lo.z(); k <= hi.z(); ++k) {
-          for (int j = lo.y(); j <= hi.y(); ++j) {
-            for (int i = lo.x(); i <= hi.x(); ++i) {
-              Eigen::Vector3i cell(i, j, k);
-              triangle_hash_.ForEach(
-                  cell,
-                  [&](int entry) {
-                    // test each triangle once: in the first cell the
-                    // segment's and the triangle's cell ranges share
-                    Eigen::Vector3i first = lo.cwiseMax(triangle_lo_[entry]);
-                    if (cell == first && (cell.array() <= triangle_hi_[entry].array()).all()) {
-                      test(entry);
-                    }
-                  },
-                  b + 1);
+  std::atomic<int> edges = 0;
+  ParallelFor(
+      std::max(1, options_.num_threads), 0, num_hits,
+      [&](int h) {
+        const Hit& hit = hits_[h];
+        const int a = vertex_object_[hit.vertex];
+        const int b = hit.penetrated;
+        const int v = hit.vertex - vertex_offset_[a];
+        const TetMesh& mesh_a = *objects[a].mesh;
+        const Positions& x_b = *objects[b].positions;
+        const Triangles& surface_b = objects[b].mesh->surface();
+        const Eigen::Vector3d p = Position(hit.vertex);
+        int slot = crossing_offset_[h];
+        for (int n = mesh_a.adjacency_offsets()[v]; n < mesh_a.adjacency_offsets()[v + 1];
+             ++n, ++slot) {
+          Crossing& crossing = crossings_[slot];
+          crossing.valid = false;
+          const int q_local = mesh_a.adjacency()[n];
+          const int q_global = vertex_offset_[a] + q_local;
+          if (FindHit(q_global, b) >= 0) continue;  // q is inside B too: not an intersection edge
+          ++edges;
+          const Eigen::Vector3d q = Position(q_global);
+          double best_t = std::numeric_limits<double>::infinity();
+          int best_entry = -1;
+          double best_u = 0.0, best_v = 0.0;
+          const Eigen::Vector3d segment_lo = q.cwiseMin(p);
+          const Eigen::Vector3d segment_hi = q.cwiseMax(p);
+          auto test = [&](int entry) {
+            if (triangles_[entry][0] != b) return;
+            if ((triangle_box_lo_[entry].array() > segment_hi.array()).any() ||
+                (segment_lo.array() > triangle_box_hi_[entry].array()).any()) {
+              return;
+            }
+            const int f = triangles_[entry][1];
+            if (a == b) {  // self-collision: the edge's own triangles do not count
+              for (int k = 0; k < 3; ++k) {
+                if (surface_b(f, k) == v || surface_b(f, k) == q_local) return;
+              }
+            }
+            double t, u, w;
+            if (!SegmentTriangle(q, p, x_b.row(surface_b(f, 0)), x_b.row(surface_b(f, 1)),
+                                 x_b.row(surface_b(f, 2)), t, u, w)) {
+              return;
+            }
+            // nearest to q; ties broken by entry for determinism
+            if (t < best_t || (t == best_t && entry < best_entry)) {
+              best_t = t;
+              best_entry = entry;
+              best_u = u;
+              best_v = w;
+            }
+          };
+          if (object_small_[b]) {
+            // a small object's triangles are all in its list, none in the grid
+            for (int entry = object_entry_begin_[b]; entry < object_entry_end_[b]; ++entry)
+              test(entry);
+          } else {
+            for (int entry : large_triangles_) test(entry);
+            Eigen::Vector3i lo = triangle_hash_.CellOf(segment_lo);
+            Eigen::Vector3i hi = triangle_hash_.CellOf(segment_hi);
+            for (int k = lo.z(); k <= hi.z(); ++k) {
+              for (int j = lo.y(); j <= hi.y(); ++j) {
+                for (int i = lo.x(); i <= hi.x(); ++i) {
+                  Eigen::Vector3i cell(i, j, k);
+                  triangle_hash_.ForEach(
+                      cell,
+                      [&](int entry) {
+                        // test each triangle once: in the first cell the
+                        // segment's and the triangle's cell ranges share
+                        Eigen::Vector3i first = lo.cwiseMax(triangle_lo_[entry]);
+                        if (cell == first && (cell.array() <= triangle_hi_[entry].array()).all()) {
+                          test(entry);
+                        }
+                      },
+                      b + 1);
+                }
+              }
             }
           }
+          if (best_entry < 0) continue;
+          const int f = triangles_[best_entry][1];
+          crossing.point = q + best_t * (p - q);
+          // smooth normal: barycentric interpolation of the vertex normals
+          Eigen::Vector3d normal =
+              (1.0 - best_u - best_v) * normals_[b].row(surface_b(f, 0)).transpose() +
+              best_u * normals_[b].row(surface_b(f, 1)).transpose() +
+              best_v * normals_[b].row(surface_b(f, 2)).transpose();
+          double length = normal.norm();
+          if (length < 1e-12) {  // opposite vertex normals cancel: use the face normal
+            normal = (x_b.row(surface_b(f, 1)) - x_b.row(surface_b(f, 0)))
+                         .cross(x_b.row(surface_b(f, 2)) - x_b.row(surface_b(f, 0)))
+                         .transpose();
+            length = normal.norm();
+            if (length == 0.0) continue;
+          }
+          crossing.normal = normal / length;
+          crossing.valid = true;
         }
-      }
-      if (best_entry < 0) continue;
-      const int f = triangles_[best_entry][1];
-      crossing.point = q + best_t * (p - q);
-      // smooth normal: barycentric interpolation of the vertex normals
-      Eigen::Vector3d normal =
-          (1.0 - best_u - best_v) * normals_[b].row(surface_b(f, 0)).transpose() +
-          best_u * normals_[b].row(surface_b(f, 1)).transpose() +
-          best_v * normals_[b].row(surface_b(f, 2)).transpose();
-      double length = normal.norm();
-      if (length < 1e-12) {  // opposite vertex normals cancel: use the face normal
-        normal = (x_b.row(surface_b(f, 1)) - x_b.row(surface_b(f, 0)))
-                     .cross(x_b.row(surface_b(f, 2)) - x_b.row(surface_b(f, 0)))
-                     .transpose();
-        length = normal.norm();
-        if (length == 0.0) continue;
-      }
-      crossing.normal = normal / length;
-      crossing.valid = true;
-    }
-  }
+      },
+      Schedule::kDynamic, 64);
   stats_.intersection_edges = edges;
   timings_.intersect += SecondsSince(start);
 }
@@ -493,8 +496,7 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> /*o
   layer_.assign(num_hits, -1);
   // a crossing closer than this to p means p is on the surface: depth 0
   const double on_surface = 1e-9 * cell_size_;
-#pragma omp parallel for num_threads(std::max(1, options_.num_threads)) schedule(static)
-  for (int h = 0; h < num_hits; ++h) {
+  ParallelFor(std::max(1, options_.num_threads), 0, num_hits, [&](int h) {
     const Eigen::Vector3d p = Position(hits_[h].vertex);
     double weight_sum = 0.0;
     double depth_sum = 0.0;
@@ -517,7 +519,7 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> /*o
       depth_sum += w * to_crossing.dot(crossing.normal);
       normal_sum += w * crossing.normal;
     }
-    if (nearest < 0) continue;  // not a border point (or no crossing found)
+    if (nearest < 0) return;  // not a border point (or no crossing found)
     if (nearest_distance < on_surface || weight_sum == 0.0) {
       depth_[h] = 0.0;
       direction_[h] = crossings_[nearest].normal;
@@ -529,7 +531,7 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> /*o
     }
     source_[h] = DepthSource::kBorder;
     layer_[h] = 0;
-  }
+  });
   timings_.border += SecondsSince(start);
 }
 
@@ -561,48 +563,48 @@ void PenetrationSolver::Propagate(std::span<const CollisionObject> objects) {
       }
     }
     std::sort(next_frontier_.begin(), next_frontier_.end());
-#pragma omp parallel for num_threads(std::max(1, options_.num_threads)) schedule(static)
-    for (size_t i = 0; i < next_frontier_.size(); ++i) {
-      const int h = next_frontier_[i];
-      const int g = hits_[h].vertex;
-      const int a = vertex_object_[g];
-      const int v = g - vertex_offset_[a];
-      const TetMesh& mesh = *objects[a].mesh;
-      const Eigen::Vector3d p = Position(g);
-      double weight_sum = 0.0;
-      double depth_sum = 0.0;
-      Eigen::Vector3d direction_sum = Eigen::Vector3d::Zero();
-      int copy_from = -1;
-      for (int n = mesh.adjacency_offsets()[v]; n < mesh.adjacency_offsets()[v + 1]; ++n) {
-        const int j_global = vertex_offset_[a] + mesh.adjacency()[n];
-        const int j = FindHit(j_global, hits_[h].penetrated);
-        if (j < 0 || layer_[j] < 0) continue;  // only points of earlier layers
-        Eigen::Vector3d to_neighbour = Position(j_global) - p;
-        double distance_sq = to_neighbour.squaredNorm();
-        if (distance_sq < coincident * coincident) {
-          if (copy_from < 0) copy_from = j;
-          continue;
-        }
-        // mu_j = 1 / |p_j - p|^2 (method.md, stage 4)
-        double mu = 1.0 / distance_sq;
-        weight_sum += mu;
-        depth_sum += mu * (to_neighbour.dot(direction_[j]) + depth_[j]);
-        direction_sum += mu * direction_[j];
-      }
-      if (copy_from >= 0 || weight_sum == 0.0) {
-        depth_[h] = depth_[copy_from];
-        direction_[h] = direction_[copy_from];
-      } else {
-        depth_[h] = std::max(0.0, depth_sum / weight_sum);
-        double length = direction_sum.norm();
-        if (length > 1e-12 * weight_sum) {
-          direction_[h] = direction_sum / length;
-        } else {  // directions cancel: keep the nearest neighbour's
-          direction_[h] = Eigen::Vector3d::Zero();
-        }
-      }
-      source_[h] = DepthSource::kPropagated;
-    }
+    ParallelFor(
+        std::max(1, options_.num_threads), 0, static_cast<int>(next_frontier_.size()), [&](int i) {
+          const int h = next_frontier_[i];
+          const int g = hits_[h].vertex;
+          const int a = vertex_object_[g];
+          const int v = g - vertex_offset_[a];
+          const TetMesh& mesh = *objects[a].mesh;
+          const Eigen::Vector3d p = Position(g);
+          double weight_sum = 0.0;
+          double depth_sum = 0.0;
+          Eigen::Vector3d direction_sum = Eigen::Vector3d::Zero();
+          int copy_from = -1;
+          for (int n = mesh.adjacency_offsets()[v]; n < mesh.adjacency_offsets()[v + 1]; ++n) {
+            const int j_global = vertex_offset_[a] + mesh.adjacency()[n];
+            const int j = FindHit(j_global, hits_[h].penetrated);
+            if (j < 0 || layer_[j] < 0) continue;  // only points of earlier layers
+            Eigen::Vector3d to_neighbour = Position(j_global) - p;
+            double distance_sq = to_neighbour.squaredNorm();
+            if (distance_sq < coincident * coincident) {
+              if (copy_from < 0) copy_from = j;
+              continue;
+            }
+            // mu_j = 1 / |p_j - p|^2 (method.md, stage 4)
+            double mu = 1.0 / distance_sq;
+            weight_sum += mu;
+            depth_sum += mu * (to_neighbour.dot(direction_[j]) + depth_[j]);
+            direction_sum += mu * direction_[j];
+          }
+          if (copy_from >= 0 || weight_sum == 0.0) {
+            depth_[h] = depth_[copy_from];
+            direction_[h] = direction_[copy_from];
+          } else {
+            depth_[h] = std::max(0.0, depth_sum / weight_sum);
+            double length = direction_sum.norm();
+            if (length > 1e-12 * weight_sum) {
+              direction_[h] = direction_sum / length;
+            } else {  // directions cancel: keep the nearest neighbour's
+              direction_[h] = Eigen::Vector3d::Zero();
+            }
+          }
+          source_[h] = DepthSource::kPropagated;
+        });
     for (int h : next_frontier_) {
       layer_[h] = direction_[h].squaredNorm() > 0.0 ? layer : -1;
     }
@@ -701,34 +703,37 @@ void PenetrationSolver::ComputeClosest(std::span<const CollisionObject> objects,
   for (int h = 0; h < num_hits; ++h) {
     if (layer_[h] < 0) HashRemainingTriangles(objects, hits_[h].penetrated);
   }
-#pragma omp parallel for num_threads(std::max(1, options_.num_threads)) schedule(dynamic, 64)
-  for (int h = 0; h < num_hits; ++h) {
-    if (layer_[h] >= 0) continue;
-    const int g = hits_[h].vertex;
-    const int a = vertex_object_[g];
-    const int b = hits_[h].penetrated;
-    const Eigen::Vector3d p = Position(g);
-    Eigen::Vector3d closest;
-    int exclude = a == b ? g - vertex_offset_[a] : -1;
-    if (!ClosestSurfacePoint(objects, b, p, exclude, closest)) continue;
-    Eigen::Vector3d to_surface = closest - p;
-    double distance = to_surface.norm();
-    depth_[h] = distance;
-    if (distance > 0.0) {
-      direction_[h] = to_surface / distance;
-    } else {
-      // on the surface: the way out is B's outward normal there; take the
-      // containing tet's centroid as the inside
-      const auto tet = objects[b].mesh->tets().row(hits_[h].tet);
-      Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
-      for (int i = 0; i < 4; ++i) centroid += objects[b].positions->row(tet[i]).transpose() / 4.0;
-      Eigen::Vector3d out = p - centroid;
-      direction_[h] =
-          out.norm() > 0.0 ? Eigen::Vector3d(out.normalized()) : Eigen::Vector3d::UnitZ();
-    }
-    source_[h] = source;
-    layer_[h] = std::numeric_limits<int>::max();
-  }
+  ParallelFor(
+      std::max(1, options_.num_threads), 0, num_hits,
+      [&](int h) {
+        if (layer_[h] >= 0) return;
+        const int g = hits_[h].vertex;
+        const int a = vertex_object_[g];
+        const int b = hits_[h].penetrated;
+        const Eigen::Vector3d p = Position(g);
+        Eigen::Vector3d closest;
+        int exclude = a == b ? g - vertex_offset_[a] : -1;
+        if (!ClosestSurfacePoint(objects, b, p, exclude, closest)) return;
+        Eigen::Vector3d to_surface = closest - p;
+        double distance = to_surface.norm();
+        depth_[h] = distance;
+        if (distance > 0.0) {
+          direction_[h] = to_surface / distance;
+        } else {
+          // on the surface: the way out is B's outward normal there; take the
+          // containing tet's centroid as the inside
+          const auto tet = objects[b].mesh->tets().row(hits_[h].tet);
+          Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+          for (int i = 0; i < 4; ++i)
+            centroid += objects[b].positions->row(tet[i]).transpose() / 4.0;
+          Eigen::Vector3d out = p - centroid;
+          direction_[h] =
+              out.norm() > 0.0 ? Eigen::Vector3d(out.normalized()) : Eigen::Vector3d::UnitZ();
+        }
+        source_[h] = source;
+        layer_[h] = std::numeric_limits<int>::max();
+      },
+      Schedule::kDynamic, 64);
   timings_.closest += SecondsSince(start);
 }
 

@@ -6,6 +6,7 @@
 #include "deformable/corotational.h"
 #include "deformable/coupled_step.h"
 #include "mesh/error.h"
+#include "mesh/parallel_for.h"
 
 namespace tetcosim {
 
@@ -33,9 +34,8 @@ void ForEachBatch(const FemModel& model, int num_threads, const Visit& visit) {
   const std::vector<ElementBatch>& batches = model.colored_batches();
   const std::vector<int>& offsets = model.color_batch_offsets();
   for (int color = 0; color + 1 < static_cast<int>(offsets.size()); ++color) {
-    const bool parallel = color < 63;
-#pragma omp parallel for num_threads(num_threads) schedule(static) if (parallel)
-    for (int k = offsets[color]; k < offsets[color + 1]; ++k) visit(k, batches[k]);
+    ParallelFor(color < 63 ? num_threads : 1, offsets[color], offsets[color + 1],
+                [&](int k) { visit(k, batches[k]); });
   }
 }
 
@@ -365,8 +365,7 @@ void DeformableBody::MultiplySystem(const double* x, double* y) const {
   const double* values = A_.valuePtr();
   const int num_vertices = model_->num_vertices();
   // rows are independent: the same result for any thread count
-#pragma omp parallel for num_threads(num_threads_) schedule(static) if (num_threads_ > 1)
-  for (int v = 0; v < num_vertices; ++v) {
+  ParallelFor(num_threads_, 0, num_vertices, [&](int v) {
     const int begin = row_start[3 * v];
     const int length = row_start[3 * v + 1] - begin;  // the same for the three rows
     const double* a0 = values + begin;
@@ -383,7 +382,7 @@ void DeformableBody::MultiplySystem(const double* x, double* y) const {
     y[3 * v] = y0;
     y[3 * v + 1] = y1;
     y[3 * v + 2] = y2;
-  }
+  });
 }
 
 // pinned DoFs: v+ = (target - x) / dt, eliminated from the system symmetrically
