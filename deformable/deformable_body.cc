@@ -58,6 +58,22 @@ inline Lanes3x3 GatherEdges(const double* x, const Tets& tets, const ElementBatc
   return D;
 }
 
+// the transpose of GatherEdges, added to y lane by lane in order:
+// y_{j+1} += f[j], y_0 -= f[0] + f[1] + f[2] (f[j][r], unused lanes skipped)
+inline void ScatterEdges(const Lanes3x3& f, const Tets& tets, const ElementBatch& batch,
+                         double* y) {
+  for (int lane = 0; lane < 4; ++lane) {
+    const int t = batch.tets[lane];
+    if (t < 0) continue;
+    double* y0 = y + 3 * tets(t, 0);
+    for (int j = 0; j < 3; ++j) {
+      double* yj = y + 3 * tets(t, j + 1);
+      for (int r = 0; r < 3; ++r) yj[r] += f[j][r][lane];
+    }
+    for (int r = 0; r < 3; ++r) y0[r] -= f[0][r][lane] + f[1][r][lane] + f[2][r][lane];
+  }
+}
+
 }  // namespace
 
 DeformableBody::DeformableBody(std::shared_ptr<const FemModel> model, std::string name)
@@ -214,17 +230,12 @@ void DeformableBody::Assemble(const StepSettings& settings, bool matrix) {
                      a * ci[1] * ci[1] + d, a * ci[1] * ci[2], a * ci[2] * ci[2] + d};
     }
     // scatter, lane by lane in order
+    ScatterEdges(f, mesh.tets(), batch, b_.data());
     for (int lane = 0; lane < 4; ++lane) {
       const int t = batch.tets[lane];
       if (t < 0) continue;
       const auto tet = mesh.tets().row(t);
       rotations_[t] = Eigen::Quaterniond(q[0][lane], q[1][lane], q[2][lane], q[3][lane]);
-      double* b0 = b_.data() + 3 * tet[0];
-      for (int j = 0; j < 3; ++j) {
-        double* bj = b_.data() + 3 * tet[j + 1];
-        for (int r = 0; r < 3; ++r) bj[r] += f[j][r][lane];
-      }
-      for (int r = 0; r < 3; ++r) b0[r] -= f[0][r][lane] + f[1][r][lane] + f[2][r][lane];
       for (int i = 0; i < 4; ++i) {
         Eigen::Matrix3d& block = diagonal_blocks_[tet[i]];
         const std::array<Lanes, 6>& u = diagonal[i];
@@ -331,17 +342,7 @@ void DeformableBody::MultiplyElementWise(const double* x, double* y) const {
       for (int r = 0; r < 3; ++r)
         f[j][r] = S[r][0] * C[0][j] + S[r][1] * C[1][j] + S[r][2] * C[2][j];
     }
-    for (int lane = 0; lane < 4; ++lane) {
-      const int t = batch.tets[lane];
-      if (t < 0) continue;
-      const auto tet = mesh.tets().row(t);
-      double* y0 = y + 3 * tet[0];
-      for (int j = 0; j < 3; ++j) {
-        double* yj = y + 3 * tet[j + 1];
-        for (int r = 0; r < 3; ++r) yj[r] += f[j][r][lane];
-      }
-      for (int r = 0; r < 3; ++r) y0[r] -= f[0][r][lane] + f[1][r][lane] + f[2][r][lane];
-    }
+    ScatterEdges(f, mesh.tets(), batch, y);
   });
 }
 
