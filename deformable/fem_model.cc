@@ -111,12 +111,13 @@ std::shared_ptr<const FemModel> FemModel::Build(std::shared_ptr<const TetMesh> m
     }
     num_colors = std::max(num_colors, c + 1);
   }
-  model->color_offsets_.assign(num_colors + 1, 0);
-  for (int t = 0; t < num_tets; ++t) ++model->color_offsets_[color[t] + 1];
-  for (int c = 0; c < num_colors; ++c) model->color_offsets_[c + 1] += model->color_offsets_[c];
-  model->colored_tets_.resize(num_tets);
-  std::vector<int> fill(model->color_offsets_.begin(), model->color_offsets_.end() - 1);
-  for (int t = 0; t < num_tets; ++t) model->colored_tets_[fill[color[t]]++] = t;
+  // the tets sorted by colour (mesh order within a colour)
+  std::vector<int> color_offsets(num_colors + 1, 0);  // #colors + 1
+  for (int t = 0; t < num_tets; ++t) ++color_offsets[color[t] + 1];
+  for (int c = 0; c < num_colors; ++c) color_offsets[c + 1] += color_offsets[c];
+  std::vector<int> colored_tets(num_tets);
+  std::vector<int> fill(color_offsets.begin(), color_offsets.end() - 1);
+  for (int t = 0; t < num_tets; ++t) colored_tets[fill[color[t]]++] = t;
 
   // batches of four, in mesh order and within each colour
   auto append_batches = [](const int* tets, int count, std::vector<ElementBatch>& batches) {
@@ -130,8 +131,7 @@ std::shared_ptr<const FemModel> FemModel::Build(std::shared_ptr<const TetMesh> m
   append_batches(mesh_order.data(), num_tets, model->serial_batches_);
   model->color_batch_offsets_.assign(1, 0);
   for (int c = 0; c < num_colors; ++c) {
-    const int begin = model->color_offsets_[c];
-    append_batches(model->colored_tets_.data() + begin, model->color_offsets_[c + 1] - begin,
+    append_batches(colored_tets.data() + color_offsets[c], color_offsets[c + 1] - color_offsets[c],
                    model->colored_batches_);
     model->color_batch_offsets_.push_back(static_cast<int>(model->colored_batches_.size()));
   }

@@ -61,14 +61,12 @@ class FemModel {
   const std::vector<std::array<int, 16>>& element_slots() const { return element_slots_; }
   // Where the columns of vertex v start in its own rows.
   const std::vector<int>& diagonal_slot() const { return diagonal_slot_; }
-  // Tetrahedra grouped so that no two of a group share a vertex (greedy
-  // colouring): a group's elements can be assembled in parallel, and the
-  // order of the sums stays the same whatever the thread count.
-  const std::vector<int>& color_offsets() const { return color_offsets_; }  // #colors + 1
-  const std::vector<int>& colored_tets() const { return colored_tets_; }    // #T
   // The tetrahedra in batches of four: in mesh order (for one thread), and
   // colour by colour (a batch never spans two colours; batches
-  // color_batch_offsets()[c] up to [c + 1] hold colour c).
+  // color_batch_offsets()[c] up to [c + 1] hold colour c). Colours come
+  // from a greedy colouring in which no two tets of a colour share a vertex:
+  // a colour's elements can be assembled in parallel, and the order of the
+  // sums stays the same whatever the thread count.
   const std::vector<ElementBatch>& serial_batches() const { return serial_batches_; }
   const std::vector<ElementBatch>& colored_batches() const { return colored_batches_; }
   const std::vector<int>& color_batch_offsets() const { return color_batch_offsets_; }
@@ -89,8 +87,6 @@ class FemModel {
   std::vector<int> columns_;
   std::vector<std::array<int, 16>> element_slots_;
   std::vector<int> diagonal_slot_;
-  std::vector<int> color_offsets_;
-  std::vector<int> colored_tets_;
   std::vector<ElementBatch> serial_batches_;
   std::vector<ElementBatch> colored_batches_;
   std::vector<int> color_batch_offsets_;
