@@ -569,7 +569,6 @@ void World::Step() {
   for (int i = 0; i < 6 * m->nbody; ++i) {
     if (d->xfrc_applied[i] != written_[i]) user_[i] = d->xfrc_applied[i] - ours_[i];
   }
-  const std::vector<double>& user = user_;
 
   Clock::time_point phase = Clock::now();
   mj_step1(m, d);
@@ -657,7 +656,7 @@ void World::Step() {
     for (int k = 0; k < 6; ++k) {
       // accumulated_ holds force at 0..2 and torque at 3..5, like xfrc_applied
       ours_[6 * b + k] = accumulated_[6 * b + k];
-      d->xfrc_applied[6 * b + k] = user[6 * b + k] + ours_[6 * b + k];
+      d->xfrc_applied[6 * b + k] = user_[6 * b + k] + ours_[6 * b + k];
       written_[6 * b + k] = d->xfrc_applied[6 * b + k];
     }
   }
