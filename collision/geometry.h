@@ -5,6 +5,7 @@
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+#include <cmath>
 
 namespace tetcosim {
 
@@ -16,17 +17,59 @@ constexpr double kBarycentricTolerance = 1e-12;
 // Barycentric coordinates of p in the tetrahedron (a, b, c, d):
 // p = l0 a + l1 b + l2 c + l3 d with l0 + l1 + l2 + l3 = 1. Returns false for
 // a degenerate tetrahedron (zero volume).
-bool TetBarycentric(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c,
-                    const Eigen::Vector3d& d, const Eigen::Vector3d& p, Eigen::Vector4d& l);
+inline bool TetBarycentric(const Eigen::Vector3d& a, const Eigen::Vector3d& b,
+                           const Eigen::Vector3d& c, const Eigen::Vector3d& d,
+                           const Eigen::Vector3d& p, Eigen::Vector4d& l) {
+  // solve [b-a c-a d-a] (l1 l2 l3)^T = p - a by Cramer's rule
+  Eigen::Vector3d e1 = b - a, e2 = c - a, e3 = d - a, r = p - a;
+  double det = e1.dot(e2.cross(e3));
+  if (det == 0.0 || !std::isfinite(det)) return false;
+  double inv = 1.0 / det;
+  l[1] = r.dot(e2.cross(e3)) * inv;
+  l[2] = e1.dot(r.cross(e3)) * inv;
+  l[3] = e1.dot(e2.cross(r)) * inv;
+  l[0] = 1.0 - l[1] - l[2] - l[3];
+  return true;
+}
 
-// Where the segment from q to p crosses the triangle (a, b, c), if it does:
-// x = q + t (p - q), t in [0, 1], and the barycentric coordinates (1-u-v, u, v)
-// of x in the triangle. Points on triangle edges and vertices count as hits
-// (a relative tolerance of 1e-12), so an edge through a shared triangle edge
-// hits both triangles rather than slipping between them.
-bool SegmentTriangle(const Eigen::Vector3d& q, const Eigen::Vector3d& p, const Eigen::Vector3d& a,
-                     const Eigen::Vector3d& b, const Eigen::Vector3d& c, double& t, double& u,
-                     double& v);
+// Where the segment from q to q + dir crosses the triangle (a, a + e1,
+// a + e2), if it does: x = q + t dir, t in [0, 1], and the barycentric
+// coordinates (1-u-v, u, v) of x in the triangle. Points on triangle edges
+// and vertices count as hits (a relative tolerance of 1e-12), so an edge
+// through a shared triangle edge hits both triangles rather than slipping
+// between them. dir_length = |dir| and edge_lengths = |e1| |e2|, given so that
+// callers testing one segment against many triangles, or one triangle
+// against many segments, compute them once.
+inline bool SegmentTriangle(const Eigen::Vector3d& q, const Eigen::Vector3d& dir, double dir_length,
+                            const Eigen::Vector3d& a, const Eigen::Vector3d& e1,
+                            const Eigen::Vector3d& e2, double edge_lengths, double& t, double& u,
+                            double& v) {
+  // Moller-Trumbore: q + t dir = (1-u-v) a + u (a + e1) + v (a + e2)
+  constexpr double kTolerance = 1e-12;
+  Eigen::Vector3d h = dir.cross(e2);
+  double det = e1.dot(h);
+  double scale = edge_lengths * dir_length;
+  if (std::abs(det) <= 1e-14 * scale || scale == 0.0) return false;  // parallel or degenerate
+  double inv = 1.0 / det;
+  Eigen::Vector3d s = q - a;
+  u = s.dot(h) * inv;
+  if (u < -kTolerance || u > 1.0 + kTolerance) return false;
+  Eigen::Vector3d k = s.cross(e1);
+  v = dir.dot(k) * inv;
+  if (v < -kTolerance || u + v > 1.0 + kTolerance) return false;
+  t = e2.dot(k) * inv;
+  if (t < -kTolerance || t > 1.0 + kTolerance) return false;
+  return true;
+}
+
+// The same for the segment from q to p and the triangle (a, b, c).
+inline bool SegmentTriangle(const Eigen::Vector3d& q, const Eigen::Vector3d& p,
+                            const Eigen::Vector3d& a, const Eigen::Vector3d& b,
+                            const Eigen::Vector3d& c, double& t, double& u, double& v) {
+  Eigen::Vector3d dir = p - q;
+  Eigen::Vector3d e1 = b - a, e2 = c - a;
+  return SegmentTriangle(q, dir, dir.norm(), a, e1, e2, e1.norm() * e2.norm(), t, u, v);
+}
 
 // The point of the triangle (a, b, c) nearest to p (exact, by Voronoi regions
 // of the triangle's vertices, edges and face).

@@ -32,6 +32,26 @@ constexpr long kMaxTetCells = 512;
 // which is cheaper than walking the cells of a segment or a search shell.
 constexpr int kSmallSurface = 48;
 
+// (all six comparisons, combined without branches: in the hot loops the
+// outcome is close to random, and mispredicted branches cost more)
+bool BoxesOverlap(const Eigen::Vector3d& lo_a, const Eigen::Vector3d& hi_a,
+                  const Eigen::Vector3d& lo_b, const Eigen::Vector3d& hi_b) {
+  return (lo_a.x() <= hi_b.x()) & (lo_b.x() <= hi_a.x()) & (lo_a.y() <= hi_b.y()) &
+         (lo_b.y() <= hi_a.y()) & (lo_a.z() <= hi_b.z()) & (lo_b.z() <= hi_a.z());
+}
+
+bool InBox(const Eigen::Vector3d& p, const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) {
+  return (lo.x() <= p.x()) & (p.x() <= hi.x()) & (lo.y() <= p.y()) & (p.y() <= hi.y()) &
+         (lo.z() <= p.z()) & (p.z() <= hi.z());
+}
+
+// How many of the num_threads threads a loop of n items should use: one per
+// min_per_thread items at least. Waking and joining a team costs about as
+// much as a few thousand cheap iterations, so short loops run on one.
+int ThreadsFor(int num_threads, int n, int min_per_thread) {
+  return std::clamp(n / min_per_thread, 1, std::max(1, num_threads));
+}
+
 long CellCount(const Eigen::Vector3i& lo, const Eigen::Vector3i& hi) {
   long count = 1;
   for (int a = 0; a < 3; ++a) count *= static_cast<long>(hi[a]) - lo[a] + 1;
@@ -121,39 +141,44 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
   cell_size_ = options_.cell_size > 0.0 ? options_.cell_size
                : edge_count > 0         ? edge_sum / static_cast<double>(edge_count)
                                         : 1.0;
-  // broad phase: bounding boxes, and the pairs of objects whose boxes overlap
+  // broad phase: bounding boxes; per object B the region where a partner
+  // (an object that may collide with B, B itself with self-collision) can
+  // reach into it: the union of B's box's overlaps with the partners' boxes.
+  // Pairs by sweep and prune along x.
   object_lo_.resize(num_objects);
   object_hi_.resize(num_objects);
   for (int o = 0; o < num_objects; ++o) {
     object_lo_[o] = objects[o].positions->colwise().minCoeff().transpose();
     object_hi_[o] = objects[o].positions->colwise().maxCoeff().transpose();
   }
-  partner_offset_.resize(num_objects + 1);
-  partner_offset_[0] = 0;
-  partners_.clear();
-  for (int b = 0; b < num_objects; ++b) {
-    for (int a = 0; a < num_objects; ++a) {
-      bool may_collide =
-          a == b ? objects[b].self_collision : !(objects[a].rigid && objects[b].rigid);
-      if (may_collide && (object_lo_[a].array() <= object_hi_[b].array()).all() &&
-          (object_lo_[b].array() <= object_hi_[a].array()).all()) {
-        partners_.push_back(a);
+  const double inf = std::numeric_limits<double>::infinity();
+  search_lo_.assign(num_objects, Eigen::Vector3d::Constant(inf));
+  search_hi_.assign(num_objects, Eigen::Vector3d::Constant(-inf));
+  auto add_overlap = [&](int a, int b) {
+    Eigen::Vector3d lo = object_lo_[a].cwiseMax(object_lo_[b]);
+    Eigen::Vector3d hi = object_hi_[a].cwiseMin(object_hi_[b]);
+    for (int o : {a, b}) {
+      search_lo_[o] = search_lo_[o].cwiseMin(lo);
+      search_hi_[o] = search_hi_[o].cwiseMax(hi);
+    }
+  };
+  sweep_order_.resize(num_objects);
+  for (int o = 0; o < num_objects; ++o) sweep_order_[o] = o;
+  std::sort(sweep_order_.begin(), sweep_order_.end(), [&](int a, int b) {
+    return object_lo_[a].x() != object_lo_[b].x() ? object_lo_[a].x() < object_lo_[b].x() : a < b;
+  });
+  for (int i = 0; i < num_objects; ++i) {
+    const int a = sweep_order_[i];
+    if (objects[a].self_collision) add_overlap(a, a);
+    for (int j = i + 1; j < num_objects && object_lo_[sweep_order_[j]].x() <= object_hi_[a].x();
+         ++j) {
+      const int b = sweep_order_[j];
+      if (objects[a].rigid && objects[b].rigid) continue;  // the rigid engine's pair
+      if (BoxesOverlap(object_lo_[a], object_hi_[a], object_lo_[b], object_hi_[b])) {
+        add_overlap(a, b);
       }
     }
-    partner_offset_[b + 1] = static_cast<int>(partners_.size());
   }
-}
-
-bool PenetrationSolver::OverlapsPartner(int b, const Eigen::Vector3d& lo,
-                                        const Eigen::Vector3d& hi) const {
-  for (int i = partner_offset_[b]; i < partner_offset_[b + 1]; ++i) {
-    int a = partners_[i];
-    if ((lo.array() <= object_hi_[a].array()).all() &&
-        (object_lo_[a].array() <= hi.array()).all()) {
-      return true;
-    }
-  }
-  return false;
 }
 
 // stage 1: every vertex inside a tetrahedron of another object
@@ -162,13 +187,14 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
   const int num_objects = static_cast<int>(objects.size());
   const int num_vertices = vertex_offset_[num_objects];
   const int num_threads = std::max(1, options_.num_threads);
-  // hash only vertices that lie in the box of an object they may be inside
+  // pass 1: hash the vertices that lie where a partner object can reach
   vertex_cell_.resize(num_vertices);
   vertex_hashed_.resize(num_vertices);
   hash_.Reset(cell_size_, 0);  // sets the cell size for CellOf; sized below
-  ParallelFor(num_threads, 0, num_vertices, [&](int g) {
+  ParallelFor(ThreadsFor(num_threads, num_vertices, 16384), 0, num_vertices, [&](int g) {
+    const int a = vertex_object_[g];
     Eigen::Vector3d p = Position(g);
-    vertex_hashed_[g] = OverlapsPartner(vertex_object_[g], p, p);
+    vertex_hashed_[g] = InBox(p, search_lo_[a], search_hi_[a]);
     if (vertex_hashed_[g]) vertex_cell_[g] = hash_.CellOf(p);
   });
   int num_hashed = 0;
@@ -177,32 +203,38 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
   for (int g = 0; g < num_vertices; ++g) {
     if (vertex_hashed_[g]) hash_.Insert(vertex_cell_[g], g);
   }
+  hash_.Build();
+  // what the tetrahedra test, in the hash's bucket order: one read per vertex
+  hashed_.resize(num_hashed);
+  for (int e = 0; e < num_hashed; ++e) {
+    const int g = hash_.items()[e];
+    hashed_[e] = {Position(g), g, vertex_object_[g]};
+  }
   timings_.hash += SecondsSince(start);
 
   start = Clock::now();
   bool any_deformable = false;
   for (const CollisionObject& object : objects) any_deformable |= !object.rigid;
-  std::vector<int> tet_offset_storage;  // small: #objects + 1
-  tet_offset_storage.reserve(num_objects + 1);
-  tet_offset_storage.push_back(0);
-  for (const CollisionObject& object : objects) {
-    tet_offset_storage.push_back(tet_offset_storage.back() + object.mesh->num_tets());
-  }
-  const int num_tets = tet_offset_storage.back();
+  tet_offset_.resize(num_objects + 1);
+  tet_offset_[0] = 0;
+  for (int o = 0; o < num_objects; ++o)
+    tet_offset_[o + 1] = tet_offset_[o] + objects[o].mesh->num_tets();
+  const int num_tets = tet_offset_[num_objects];
   if (static_cast<int>(thread_hits_.size()) < num_threads) thread_hits_.resize(num_threads);
   for (auto& buffer : thread_hits_) buffer.clear();
 
+  // pass 2: every tetrahedron tests the vertices in the cells of its box
   // (no vertex in the box of a partner object: nothing can be inside)
   const int num_searched = any_deformable && num_hashed > 0 ? num_tets : 0;
   ParallelFor(
-      num_threads, 0, num_searched,
+      ThreadsFor(num_threads, num_searched, 512), 0, num_searched,
       [&](int gt) {
         std::vector<Hit>& found = thread_hits_[omp_get_thread_num()];
-        int b = static_cast<int>(
-                    std::upper_bound(tet_offset_storage.begin(), tet_offset_storage.end(), gt) -
-                    tet_offset_storage.begin()) -
-                1;
-        int t = gt - tet_offset_storage[b];
+        const int b =
+            static_cast<int>(std::upper_bound(tet_offset_.begin(), tet_offset_.end(), gt) -
+                             tet_offset_.begin()) -
+            1;
+        const int t = gt - tet_offset_[b];
         const CollisionObject& object_b = objects[b];
         const Positions& x = *object_b.positions;
         const auto tet = object_b.mesh->tets().row(t);
@@ -210,42 +242,41 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
         for (int i = 0; i < 4; ++i) corner[i] = x.row(tet[i]).transpose();
         Eigen::Vector3d lo = corner[0].cwiseMin(corner[1]).cwiseMin(corner[2].cwiseMin(corner[3]));
         Eigen::Vector3d hi = corner[0].cwiseMax(corner[1]).cwiseMax(corner[2].cwiseMax(corner[3]));
-        if (!OverlapsPartner(b, lo, hi)) return;  // broad phase: nothing can be inside
-        auto test = [&](int g) {
-          int a = vertex_object_[g];
+        // broad phase: nothing can be inside
+        if (!BoxesOverlap(lo, hi, search_lo_[b], search_hi_[b])) return;
+        // (a bucket also holds vertices of other cells hashed to it, and a
+        // vertex may be met twice when two of the box's cells share a
+        // bucket: the box test takes what is in the box, duplicates go below)
+        auto test = [&](const HashedVertex& candidate) {
+          if (!InBox(candidate.position, lo, hi)) return;
+          const int a = candidate.object;
           if (a == b) {
             if (!object_b.self_collision) return;
-            int v = g - vertex_offset_[a];
+            const int v = candidate.vertex - vertex_offset_[a];
             if (v == tet[0] || v == tet[1] || v == tet[2] || v == tet[3]) return;
           } else if (object_b.rigid && objects[a].rigid) {
             return;
           }
-          Eigen::Vector3d p = Position(g);
-          if ((p.array() < lo.array()).any() || (p.array() > hi.array()).any()) return;
           Eigen::Vector4d l;
-          if (!TetBarycentric(corner[0], corner[1], corner[2], corner[3], p, l)) return;
+          if (!TetBarycentric(corner[0], corner[1], corner[2], corner[3], candidate.position, l)) {
+            return;
+          }
           // (kBarycentricTolerance: a vertex on a face shared by two tets is
           // inside both in exact arithmetic, but rounding may put it just
           // outside each; the deepest tet is kept below)
-          if (l.minCoeff() >= -kBarycentricTolerance) found.push_back({g, b, t, l});
+          if (l.minCoeff() >= -kBarycentricTolerance) found.push_back({candidate.vertex, b, t, l});
         };
-        Eigen::Vector3i cell_lo = hash_.CellOf(lo);
-        Eigen::Vector3i cell_hi = hash_.CellOf(hi);
+        const Eigen::Vector3i cell_lo = hash_.CellOf(lo);
+        const Eigen::Vector3i cell_hi = hash_.CellOf(hi);
         if (CellCount(cell_lo, cell_hi) > kMaxTetCells) {
-          for (int g = 0; g < num_vertices; ++g) {
-            if (vertex_hashed_[g]) test(g);
-          }
+          for (const HashedVertex& candidate : hashed_) test(candidate);
           return;
         }
         for (int k = cell_lo.z(); k <= cell_hi.z(); ++k) {
           for (int j = cell_lo.y(); j <= cell_hi.y(); ++j) {
             for (int i = cell_lo.x(); i <= cell_hi.x(); ++i) {
-              Eigen::Vector3i cell(i, j, k);
-              // a bucket holds vertices of every cell hashed to it: keep only
-              // this cell's, which also visits each vertex once per tet
-              hash_.ForEach(cell, [&](int g) {
-                if (vertex_cell_[g] == cell) test(g);
-              });
+              const SpatialHash::Range range = hash_.Find({i, j, k});
+              for (int e = range.begin; e < range.end; ++e) test(hashed_[e]);
             }
           }
         }
@@ -279,7 +310,7 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
 }
 
 // surface triangles of every penetrated object into the triangle hash (with
-// full = false only those in the box of an object that may penetrate it: an
+// full = false only those in the region a partner can reach: an
 // intersection edge lies in the box of its own object), and current vertex
 // normals of those objects
 void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, bool full) {
@@ -294,10 +325,7 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
   }
   triangle_hash_.Reset(cell_size_, num_triangles);
   triangles_.clear();
-  triangle_lo_.clear();
-  triangle_hi_.clear();
-  triangle_box_lo_.clear();
-  triangle_box_hi_.clear();
+  triangle_geometry_.clear();
   large_triangles_.clear();
   object_cell_lo_.resize(num_objects);
   object_cell_hi_.resize(num_objects);
@@ -316,52 +344,59 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
     object_entry_begin_[o] = static_cast<int>(triangles_.size());
     if (object_small_[o]) object_fully_hashed_[o] = 1;
     for (int f = 0; f < surface.rows(); ++f) {
-      Eigen::Vector3d a = x.row(surface(f, 0)), b = x.row(surface(f, 1)), c = x.row(surface(f, 2));
-      Eigen::Vector3d lo = a.cwiseMin(b).cwiseMin(c);
-      Eigen::Vector3d hi = a.cwiseMax(b).cwiseMax(c);
       if (object_small_[o]) {
-        InsertTriangle(o, f, lo, hi, /*grid=*/false);
-      } else if (full || OverlapsPartner(o, lo, hi)) {
-        InsertTriangle(o, f, lo, hi, /*grid=*/true);
+        AddTriangle(objects, o, f, /*grid=*/false);
+      } else {
+        AddTriangle(objects, o, f, /*grid=*/true, full ? nullptr : &search_lo_[o], &search_hi_[o]);
       }
     }
     object_entry_end_[o] = static_cast<int>(triangles_.size());
   }
+  triangle_hash_.Build();
   timings_.hash += SecondsSince(start);
 }
 
 void PenetrationSolver::HashRemainingTriangles(std::span<const CollisionObject> objects, int b) {
   if (object_fully_hashed_[b]) return;
   object_fully_hashed_[b] = 1;
-  const Positions& x = *objects[b].positions;
   const Triangles& surface = objects[b].mesh->surface();
   for (int f = 0; f < surface.rows(); ++f) {
-    Eigen::Vector3d a = x.row(surface(f, 0)), c1 = x.row(surface(f, 1)), c2 = x.row(surface(f, 2));
-    Eigen::Vector3d lo = a.cwiseMin(c1).cwiseMin(c2);
-    Eigen::Vector3d hi = a.cwiseMax(c1).cwiseMax(c2);
-    if (!OverlapsPartner(b, lo, hi)) InsertTriangle(b, f, lo, hi, /*grid=*/true);
+    AddTriangle(objects, b, f, /*grid=*/true, &search_lo_[b], &search_hi_[b], /*outside=*/true);
   }
 }
 
-void PenetrationSolver::InsertTriangle(int object, int f, const Eigen::Vector3d& lo,
-                                       const Eigen::Vector3d& hi, bool grid) {
-  Eigen::Vector3i cell_lo = triangle_hash_.CellOf(lo);
-  Eigen::Vector3i cell_hi = triangle_hash_.CellOf(hi);
-  int entry = static_cast<int>(triangles_.size());
-  triangles_.push_back({object, f});
-  triangle_lo_.push_back(cell_lo);
-  triangle_hi_.push_back(cell_hi);
-  triangle_box_lo_.push_back(lo);
-  triangle_box_hi_.push_back(hi);
-  if (!grid) return;
-  if (CellCount(cell_lo, cell_hi) > kMaxTriangleCells) {
-    large_triangles_.push_back(entry);
+void PenetrationSolver::AddTriangle(std::span<const CollisionObject> objects, int object, int f,
+                                    bool grid, const Eigen::Vector3d* region_lo,
+                                    const Eigen::Vector3d* region_hi, bool outside) {
+  const Positions& x = *objects[object].positions;
+  const Triangles& surface = objects[object].mesh->surface();
+  TriangleGeometry geometry;
+  for (int k = 0; k < 3; ++k) geometry.corner[k] = x.row(surface(f, k)).transpose();
+  TriangleEntry entry;
+  entry.lo = geometry.corner[0].cwiseMin(geometry.corner[1]).cwiseMin(geometry.corner[2]);
+  entry.hi = geometry.corner[0].cwiseMax(geometry.corner[1]).cwiseMax(geometry.corner[2]);
+  if (region_lo != nullptr && BoxesOverlap(entry.lo, entry.hi, *region_lo, *region_hi) == outside) {
     return;
   }
-  for (int k = cell_lo.z(); k <= cell_hi.z(); ++k) {
-    for (int j = cell_lo.y(); j <= cell_hi.y(); ++j) {
-      for (int i = cell_lo.x(); i <= cell_hi.x(); ++i) {
-        triangle_hash_.Insert({i, j, k}, entry, object + 1);
+  entry.object = object;
+  entry.face = f;
+  geometry.edge[0] = geometry.corner[1] - geometry.corner[0];
+  geometry.edge[1] = geometry.corner[2] - geometry.corner[0];
+  geometry.edge_lengths = geometry.edge[0].norm() * geometry.edge[1].norm();
+  geometry.cell_lo = triangle_hash_.CellOf(entry.lo);
+  geometry.cell_hi = triangle_hash_.CellOf(entry.hi);
+  const int index = static_cast<int>(triangles_.size());
+  triangles_.push_back(entry);
+  triangle_geometry_.push_back(geometry);
+  if (!grid) return;
+  if (CellCount(geometry.cell_lo, geometry.cell_hi) > kMaxTriangleCells) {
+    large_triangles_.push_back(index);
+    return;
+  }
+  for (int k = geometry.cell_lo.z(); k <= geometry.cell_hi.z(); ++k) {
+    for (int j = geometry.cell_lo.y(); j <= geometry.cell_hi.y(); ++j) {
+      for (int i = geometry.cell_lo.x(); i <= geometry.cell_hi.x(); ++i) {
+        triangle_hash_.Insert({i, j, k}, index, object + 1);
       }
     }
   }
@@ -372,6 +407,7 @@ void PenetrationSolver::InsertTriangle(int object, int f, const Eigen::Vector3d&
 void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) {
   Clock::time_point start = Clock::now();
   const int num_hits = static_cast<int>(hits_.size());
+  const int num_threads = std::max(1, options_.num_threads);
   crossing_offset_.resize(num_hits + 1);
   crossing_offset_[0] = 0;
   for (int h = 0; h < num_hits; ++h) {
@@ -382,16 +418,21 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
     crossing_offset_[h + 1] = crossing_offset_[h] + offsets[v + 1] - offsets[v];
   }
   crossings_.resize(crossing_offset_[num_hits]);
-  std::atomic<int> edges = 0;
+  // per thread: the query in which each triangle entry was last tested
+  if (static_cast<int>(thread_seen_.size()) < num_threads) thread_seen_.resize(num_threads);
+  for (int i = 0; i < num_threads; ++i) {
+    thread_seen_[i].seen.assign(triangles_.size(), 0);
+    thread_seen_[i].query = 0;
+  }
   ParallelFor(
-      std::max(1, options_.num_threads), 0, num_hits,
+      ThreadsFor(num_threads, num_hits, 64), 0, num_hits,
       [&](int h) {
+        TriangleStamps& stamps = thread_seen_[omp_get_thread_num()];
         const Hit& hit = hits_[h];
         const int a = vertex_object_[hit.vertex];
         const int b = hit.penetrated;
         const int v = hit.vertex - vertex_offset_[a];
         const TetMesh& mesh_a = *objects[a].mesh;
-        const Positions& x_b = *objects[b].positions;
         const Triangles& surface_b = objects[b].mesh->surface();
         const Eigen::Vector3d p = Position(hit.vertex);
         int slot = crossing_offset_[h];
@@ -399,71 +440,73 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
              ++n, ++slot) {
           Crossing& crossing = crossings_[slot];
           crossing.valid = false;
+          crossing.edge = false;
           const int q_local = mesh_a.adjacency()[n];
           const int q_global = vertex_offset_[a] + q_local;
           if (FindHit(q_global, b) >= 0) continue;  // q is inside B too: not an intersection edge
-          ++edges;
+          crossing.edge = true;
           const Eigen::Vector3d q = Position(q_global);
+          const Eigen::Vector3d dir = p - q;
+          const double dir_length = dir.norm();
           double best_t = std::numeric_limits<double>::infinity();
           int best_entry = -1;
           double best_u = 0.0, best_v = 0.0;
           const Eigen::Vector3d segment_lo = q.cwiseMin(p);
           const Eigen::Vector3d segment_hi = q.cwiseMax(p);
-          auto test = [&](int entry) {
-            if (triangles_[entry][0] != b) return;
-            if ((triangle_box_lo_[entry].array() > segment_hi.array()).any() ||
-                (segment_lo.array() > triangle_box_hi_[entry].array()).any()) {
+          auto test = [&](int index) {
+            const TriangleEntry& entry = triangles_[index];
+            if (entry.object != b || !BoxesOverlap(entry.lo, entry.hi, segment_lo, segment_hi)) {
               return;
             }
-            const int f = triangles_[entry][1];
             if (a == b) {  // self-collision: the edge's own triangles do not count
               for (int k = 0; k < 3; ++k) {
-                if (surface_b(f, k) == v || surface_b(f, k) == q_local) return;
+                const int c = surface_b(entry.face, k);
+                if (c == v || c == q_local) return;
               }
             }
+            const TriangleGeometry& triangle = triangle_geometry_[index];
             double t, u, w;
-            if (!SegmentTriangle(q, p, x_b.row(surface_b(f, 0)), x_b.row(surface_b(f, 1)),
-                                 x_b.row(surface_b(f, 2)), t, u, w)) {
+            if (!SegmentTriangle(q, dir, dir_length, triangle.corner[0], triangle.edge[0],
+                                 triangle.edge[1], triangle.edge_lengths, t, u, w)) {
               return;
             }
             // nearest to q; ties broken by entry for determinism
-            if (t < best_t || (t == best_t && entry < best_entry)) {
+            if (t < best_t || (t == best_t && index < best_entry)) {
               best_t = t;
-              best_entry = entry;
+              best_entry = index;
               best_u = u;
               best_v = w;
             }
           };
           if (object_small_[b]) {
             // a small object's triangles are all in its list, none in the grid
-            for (int entry = object_entry_begin_[b]; entry < object_entry_end_[b]; ++entry)
-              test(entry);
+            for (int index = object_entry_begin_[b]; index < object_entry_end_[b]; ++index) {
+              test(index);
+            }
           } else {
-            for (int entry : large_triangles_) test(entry);
-            Eigen::Vector3i lo = triangle_hash_.CellOf(segment_lo);
-            Eigen::Vector3i hi = triangle_hash_.CellOf(segment_hi);
+            for (int index : large_triangles_) test(index);
+            // a triangle covering several of the segment's cells is met in
+            // each: test it once per query
+            const std::uint32_t query = ++stamps.query;
+            const Eigen::Vector3i lo = triangle_hash_.CellOf(segment_lo);
+            const Eigen::Vector3i hi = triangle_hash_.CellOf(segment_hi);
             for (int k = lo.z(); k <= hi.z(); ++k) {
               for (int j = lo.y(); j <= hi.y(); ++j) {
                 for (int i = lo.x(); i <= hi.x(); ++i) {
-                  Eigen::Vector3i cell(i, j, k);
-                  triangle_hash_.ForEach(
-                      cell,
-                      [&](int entry) {
-                        // test each triangle once: in the first cell the
-                        // segment's and the triangle's cell ranges share
-                        Eigen::Vector3i first = lo.cwiseMax(triangle_lo_[entry]);
-                        if (cell == first && (cell.array() <= triangle_hi_[entry].array()).all()) {
-                          test(entry);
-                        }
-                      },
-                      b + 1);
+                  const SpatialHash::Range range = triangle_hash_.Find({i, j, k}, b + 1);
+                  for (int e = range.begin; e < range.end; ++e) {
+                    const int index = triangle_hash_.items()[e];
+                    if (stamps.seen[index] == query) continue;
+                    stamps.seen[index] = query;
+                    test(index);
+                  }
                 }
               }
             }
           }
           if (best_entry < 0) continue;
-          const int f = triangles_[best_entry][1];
-          crossing.point = q + best_t * (p - q);
+          const int f = triangles_[best_entry].face;
+          crossing.point = q + best_t * dir;
           // smooth normal: barycentric interpolation of the vertex normals
           Eigen::Vector3d normal =
               (1.0 - best_u - best_v) * normals_[b].row(surface_b(f, 0)).transpose() +
@@ -471,9 +514,8 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
               best_v * normals_[b].row(surface_b(f, 2)).transpose();
           double length = normal.norm();
           if (length < 1e-12) {  // opposite vertex normals cancel: use the face normal
-            normal = (x_b.row(surface_b(f, 1)) - x_b.row(surface_b(f, 0)))
-                         .cross(x_b.row(surface_b(f, 2)) - x_b.row(surface_b(f, 0)))
-                         .transpose();
+            const TriangleGeometry& triangle = triangle_geometry_[best_entry];
+            normal = triangle.edge[0].cross(triangle.edge[1]);
             length = normal.norm();
             if (length == 0.0) continue;
           }
@@ -482,6 +524,8 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
         }
       },
       Schedule::kDynamic, 64);
+  int edges = 0;
+  for (const Crossing& crossing : crossings_) edges += crossing.edge;
   stats_.intersection_edges = edges;
   timings_.intersect += SecondsSince(start);
 }
@@ -496,7 +540,7 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> /*o
   layer_.assign(num_hits, -1);
   // a crossing closer than this to p means p is on the surface: depth 0
   const double on_surface = 1e-9 * cell_size_;
-  ParallelFor(std::max(1, options_.num_threads), 0, num_hits, [&](int h) {
+  ParallelFor(ThreadsFor(options_.num_threads, num_hits, 2048), 0, num_hits, [&](int h) {
     const Eigen::Vector3d p = Position(hits_[h].vertex);
     double weight_sum = 0.0;
     double depth_sum = 0.0;
@@ -563,48 +607,48 @@ void PenetrationSolver::Propagate(std::span<const CollisionObject> objects) {
       }
     }
     std::sort(next_frontier_.begin(), next_frontier_.end());
-    ParallelFor(
-        std::max(1, options_.num_threads), 0, static_cast<int>(next_frontier_.size()), [&](int i) {
-          const int h = next_frontier_[i];
-          const int g = hits_[h].vertex;
-          const int a = vertex_object_[g];
-          const int v = g - vertex_offset_[a];
-          const TetMesh& mesh = *objects[a].mesh;
-          const Eigen::Vector3d p = Position(g);
-          double weight_sum = 0.0;
-          double depth_sum = 0.0;
-          Eigen::Vector3d direction_sum = Eigen::Vector3d::Zero();
-          int copy_from = -1;
-          for (int n = mesh.adjacency_offsets()[v]; n < mesh.adjacency_offsets()[v + 1]; ++n) {
-            const int j_global = vertex_offset_[a] + mesh.adjacency()[n];
-            const int j = FindHit(j_global, hits_[h].penetrated);
-            if (j < 0 || layer_[j] < 0) continue;  // only points of earlier layers
-            Eigen::Vector3d to_neighbour = Position(j_global) - p;
-            double distance_sq = to_neighbour.squaredNorm();
-            if (distance_sq < coincident * coincident) {
-              if (copy_from < 0) copy_from = j;
-              continue;
-            }
-            // mu_j = 1 / |p_j - p|^2 (method.md, stage 4)
-            double mu = 1.0 / distance_sq;
-            weight_sum += mu;
-            depth_sum += mu * (to_neighbour.dot(direction_[j]) + depth_[j]);
-            direction_sum += mu * direction_[j];
-          }
-          if (copy_from >= 0 || weight_sum == 0.0) {
-            depth_[h] = depth_[copy_from];
-            direction_[h] = direction_[copy_from];
-          } else {
-            depth_[h] = std::max(0.0, depth_sum / weight_sum);
-            double length = direction_sum.norm();
-            if (length > 1e-12 * weight_sum) {
-              direction_[h] = direction_sum / length;
-            } else {  // directions cancel: keep the nearest neighbour's
-              direction_[h] = Eigen::Vector3d::Zero();
-            }
-          }
-          source_[h] = DepthSource::kPropagated;
-        });
+    const int layer_size = static_cast<int>(next_frontier_.size());
+    ParallelFor(ThreadsFor(options_.num_threads, layer_size, 1024), 0, layer_size, [&](int i) {
+      const int h = next_frontier_[i];
+      const int g = hits_[h].vertex;
+      const int a = vertex_object_[g];
+      const int v = g - vertex_offset_[a];
+      const TetMesh& mesh = *objects[a].mesh;
+      const Eigen::Vector3d p = Position(g);
+      double weight_sum = 0.0;
+      double depth_sum = 0.0;
+      Eigen::Vector3d direction_sum = Eigen::Vector3d::Zero();
+      int copy_from = -1;
+      for (int n = mesh.adjacency_offsets()[v]; n < mesh.adjacency_offsets()[v + 1]; ++n) {
+        const int j_global = vertex_offset_[a] + mesh.adjacency()[n];
+        const int j = FindHit(j_global, hits_[h].penetrated);
+        if (j < 0 || layer_[j] < 0) continue;  // only points of earlier layers
+        Eigen::Vector3d to_neighbour = Position(j_global) - p;
+        double distance_sq = to_neighbour.squaredNorm();
+        if (distance_sq < coincident * coincident) {
+          if (copy_from < 0) copy_from = j;
+          continue;
+        }
+        // mu_j = 1 / |p_j - p|^2 (method.md, stage 4)
+        double mu = 1.0 / distance_sq;
+        weight_sum += mu;
+        depth_sum += mu * (to_neighbour.dot(direction_[j]) + depth_[j]);
+        direction_sum += mu * direction_[j];
+      }
+      if (copy_from >= 0 || weight_sum == 0.0) {
+        depth_[h] = depth_[copy_from];
+        direction_[h] = direction_[copy_from];
+      } else {
+        depth_[h] = std::max(0.0, depth_sum / weight_sum);
+        double length = direction_sum.norm();
+        if (length > 1e-12 * weight_sum) {
+          direction_[h] = direction_sum / length;
+        } else {  // directions cancel: keep the nearest neighbour's
+          direction_[h] = Eigen::Vector3d::Zero();
+        }
+      }
+      source_[h] = DepthSource::kPropagated;
+    });
     for (int h : next_frontier_) {
       layer_[h] = direction_[h].squaredNorm() > 0.0 ? layer : -1;
     }
@@ -622,18 +666,19 @@ void PenetrationSolver::Propagate(std::span<const CollisionObject> objects) {
 bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> objects, int b,
                                             const Eigen::Vector3d& p, int exclude,
                                             Eigen::Vector3d& closest) const {
-  const Positions& x = *objects[b].positions;
   const Triangles& surface = objects[b].mesh->surface();
   double best = std::numeric_limits<double>::infinity();
-  auto test = [&](int entry) {
-    if (triangles_[entry][0] != b) return;
-    const int f = triangles_[entry][1];
+  auto test = [&](int index) {
+    const TriangleEntry& entry = triangles_[index];
+    if (entry.object != b) return;
+    const int f = entry.face;
     if (exclude >= 0 &&
         (surface(f, 0) == exclude || surface(f, 1) == exclude || surface(f, 2) == exclude)) {
       return;
     }
+    const TriangleGeometry& triangle = triangle_geometry_[index];
     Eigen::Vector3d c =
-        ClosestPointOnTriangle(p, x.row(surface(f, 0)), x.row(surface(f, 1)), x.row(surface(f, 2)));
+        ClosestPointOnTriangle(p, triangle.corner[0], triangle.corner[1], triangle.corner[2]);
     double d = (c - p).squaredNorm();
     if (d < best) {
       best = d;
@@ -669,10 +714,11 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
           if (gap.squaredNorm() > best) continue;
           triangle_hash_.ForEach(
               cell,
-              [&](int entry) {
-                if ((cell.array() >= triangle_lo_[entry].array()).all() &&
-                    (cell.array() <= triangle_hi_[entry].array()).all()) {
-                  test(entry);
+              [&](int index) {
+                const TriangleGeometry& triangle = triangle_geometry_[index];
+                if ((cell.array() >= triangle.cell_lo.array()).all() &&
+                    (cell.array() <= triangle.cell_hi.array()).all()) {
+                  test(index);
                 }
               },
               b + 1);
@@ -700,13 +746,19 @@ void PenetrationSolver::ComputeClosest(std::span<const CollisionObject> objects,
     layer_.assign(num_hits, -1);
   }
   const DepthSource source = all ? DepthSource::kClosest : DepthSource::kFallback;
+  const int num_entries = static_cast<int>(triangles_.size());
+  frontier_.clear();  // (free after stage 4): the points without a value
   for (int h = 0; h < num_hits; ++h) {
-    if (layer_[h] < 0) HashRemainingTriangles(objects, hits_[h].penetrated);
+    if (layer_[h] >= 0) continue;
+    frontier_.push_back(h);
+    HashRemainingTriangles(objects, hits_[h].penetrated);
   }
+  if (static_cast<int>(triangles_.size()) > num_entries) triangle_hash_.Build();
+  const int num_pending = static_cast<int>(frontier_.size());
   ParallelFor(
-      std::max(1, options_.num_threads), 0, num_hits,
-      [&](int h) {
-        if (layer_[h] >= 0) return;
+      ThreadsFor(options_.num_threads, num_pending, 16), 0, num_pending,
+      [&](int i) {
+        const int h = frontier_[i];
         const int g = hits_[h].vertex;
         const int a = vertex_object_[g];
         const int b = hits_[h].penetrated;

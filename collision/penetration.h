@@ -139,11 +139,37 @@ class PenetrationSolver {
                                           : tet < o.tet;
     }
   };
+  // a vertex in the stage-1 hash (entries in bucket order)
+  struct HashedVertex {
+    Eigen::Vector3d position;
+    int vertex;  // global vertex index
+    int object;  // its object
+  };
   // a crossing of an intersection edge with B's surface
   struct Crossing {
     Eigen::Vector3d point;
     Eigen::Vector3d normal;
-    bool valid;
+    bool valid;  // a crossing was found
+    bool edge;   // the slot's edge is an intersection edge
+  };
+  // a surface triangle in the triangle hash (or in its object's list): what
+  // a query tests first, and its geometry (kept apart, read only for the few
+  // triangles whose box a query overlaps)
+  struct TriangleEntry {
+    Eigen::Vector3d lo, hi;  // bounding box
+    int object;
+    int face;  // index into the object's surface
+  };
+  struct TriangleGeometry {
+    Eigen::Vector3d corner[3];         // current positions
+    Eigen::Vector3d edge[2];           // corner[1] - corner[0], corner[2] - corner[0]
+    double edge_lengths;               // |edge[0]| |edge[1]|
+    Eigen::Vector3i cell_lo, cell_hi;  // the cells the box covers
+  };
+  // per thread: the query in which each triangle entry was last tested
+  struct TriangleStamps {
+    std::vector<std::uint32_t> seen;  // #triangle entries
+    std::uint32_t query = 0;
   };
 
   void Prepare(std::span<const CollisionObject> objects);
@@ -152,12 +178,12 @@ class PenetrationSolver {
   // adds the triangles of object b that HashSurfaces left out (for closest
   // features, which may lie outside the region where objects overlap)
   void HashRemainingTriangles(std::span<const CollisionObject> objects, int b);
-  // grid = false: kept in the entry list only (objects with small surfaces)
-  void InsertTriangle(int object, int f, const Eigen::Vector3d& lo, const Eigen::Vector3d& hi,
-                      bool grid);
-  // true if the box [lo, hi] overlaps the bounding box of an object that
-  // can collide with object b
-  bool OverlapsPartner(int b, const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) const;
+  // adds surface triangle f of an object to the entries, and with grid to
+  // the hash too (else kept in the entry list only: small surfaces); with a
+  // region, only if its box overlaps the region (outside: only if not)
+  void AddTriangle(std::span<const CollisionObject> objects, int object, int f, bool grid,
+                   const Eigen::Vector3d* region_lo = nullptr,
+                   const Eigen::Vector3d* region_hi = nullptr, bool outside = false);
   void FindCrossings(std::span<const CollisionObject> objects);
   void ComputeBorderPoints(std::span<const CollisionObject> objects);
   void Propagate(std::span<const CollisionObject> objects);
@@ -179,24 +205,27 @@ class PenetrationSolver {
   std::vector<int> vertex_object_;  // #global vertices
   std::vector<const Positions*> positions_;
   std::vector<Positions> normals_;  // #objects: current vertex normals
-  // broad phase: current bounding boxes, and per object the objects whose
-  // boxes overlap it and that it may collide with (itself with self-collision)
+  // broad phase: current bounding boxes, and per object the box where its
+  // partners (objects whose boxes overlap it and that it may collide with,
+  // itself with self-collision) reach into it; empty (lo > hi) if none
   std::vector<Eigen::Vector3d> object_lo_, object_hi_;  // #objects
-  std::vector<int> partner_offset_;                     // #objects + 1
-  std::vector<int> partners_;
+  std::vector<Eigen::Vector3d> search_lo_, search_hi_;  // #objects
+  std::vector<int> sweep_order_;                        // #objects, by object_lo_.x
+  std::vector<int> tet_offset_;                         // #objects + 1: global tet index
 
   SpatialHash hash_;  // stage 1: vertices
   std::vector<Eigen::Vector3i> vertex_cell_;
-  std::vector<char> vertex_hashed_;  // #global vertices: inside a partner's box
+  std::vector<char> vertex_hashed_;   // #global vertices: inside its object's search box
+  std::vector<HashedVertex> hashed_;  // #hashed vertices, in the hash's entry order
   std::vector<std::vector<Hit>> thread_hits_;
   std::vector<Hit> hits_;        // sorted by (vertex, penetrated)
   std::vector<int> hit_offset_;  // #global vertices + 1
 
-  SpatialHash triangle_hash_;                  // stage 2 and closest features: surface triangles
-  std::vector<std::array<int, 2>> triangles_;  // (object, local triangle) per entry
-  std::vector<Eigen::Vector3i> triangle_lo_, triangle_hi_;          // cell range per triangle entry
-  std::vector<Eigen::Vector3d> triangle_box_lo_, triangle_box_hi_;  // bounding box per entry
-  std::vector<int> large_triangles_;                                // entries too large to hash
+  SpatialHash triangle_hash_;             // stage 2 and closest features: surface triangles
+  std::vector<TriangleEntry> triangles_;  // the entries, by object
+  std::vector<TriangleGeometry> triangle_geometry_;  // per entry
+  std::vector<int> large_triangles_;                 // entries too large to hash
+  std::vector<TriangleStamps> thread_seen_;          // #threads
   std::vector<char> object_penetrated_;
   std::vector<char> object_fully_hashed_;
   std::vector<char> object_small_;  // #objects: surface tested directly, not hashed

@@ -26,7 +26,7 @@ void SpatialHash::Reset(double cell_size, int num_items) {
   if (static_cast<int>(table_size_) < wanted) {
     table_size_ = static_cast<std::uint64_t>(NextPrime(wanted));
     modulo_magic_ = UINT64_MAX / table_size_ + 1;
-    slots_.assign(table_size_, Slot{0, -1});
+    slots_.assign(table_size_, Slot{0, 0, 0});
     round_ = 0;
   }
   ++round_;
@@ -34,23 +34,40 @@ void SpatialHash::Reset(double cell_size, int num_items) {
     for (Slot& slot : slots_) slot.stamp = 0;
     round_ = 1;
   }
-  num_entries_ = 0;
+  used_buckets_.clear();
+  inserted_item_.clear();
+  inserted_bucket_.clear();
+  num_items_ = 0;
 }
 
 void SpatialHash::Insert(const Eigen::Vector3i& cell, int item, int key) {
-  Slot& slot = slots_[Bucket(cell, key)];
+  const int bucket = Bucket(cell, key);
+  Slot& slot = slots_[bucket];
   if (slot.stamp != round_) {
     slot.stamp = round_;
-    slot.head = -1;
+    slot.count = 0;
+    used_buckets_.push_back(bucket);
   }
-  if (num_entries_ == static_cast<int>(item_.size())) {
-    item_.push_back(item);
-    next_.push_back(slot.head);
-  } else {
-    item_[num_entries_] = item;
-    next_[num_entries_] = slot.head;
+  ++slot.count;
+  inserted_item_.push_back(item);
+  inserted_bucket_.push_back(bucket);
+}
+
+void SpatialHash::Build() {
+  // counting sort: each used bucket's range starts after the previous one's
+  int begin = 0;
+  for (int bucket : used_buckets_) {
+    Slot& slot = slots_[bucket];
+    slot.begin = begin;
+    begin += slot.count;
+    slot.count = 0;  // counts again while the items are placed
   }
-  slot.head = num_entries_++;
+  num_items_ = begin;
+  if (static_cast<int>(items_.size()) < num_items_) items_.resize(num_items_);
+  for (size_t i = 0; i < inserted_item_.size(); ++i) {
+    Slot& slot = slots_[inserted_bucket_[i]];
+    items_[slot.begin + slot.count++] = inserted_item_[i];
+  }
 }
 
 }  // namespace tetcosim

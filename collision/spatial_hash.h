@@ -8,11 +8,19 @@
 // clearing the table. Buckets are shared by the cells hashed to them, so a
 // query sees items of other cells too: callers re-check what they find.
 //
+// A round: Reset, Insert every item, Build, then queries. Build sorts the
+// items by bucket (a counting sort over the buckets used in the round), so a
+// bucket's items are one contiguous range of entries: a query reads them in
+// a row instead of chasing a linked list, and callers may keep per-entry data
+// (positions, boxes) in the same order. Insert after Build starts the
+// bucket order over: call Build again before the next query.
+//
 // Allocation-free once warm: storage only grows, when a round has more items
 // than any before.
 
 #include <Eigen/Core>
 #include <cstdint>
+#include <span>
 #include <vector>
 
 namespace tetcosim {
@@ -49,13 +57,31 @@ class SpatialHash {
   // Adds item to the bucket of (cell, key).
   void Insert(const Eigen::Vector3i& cell, int item, int key = 0);
 
-  // Calls visit(item) for every item in the bucket of (cell, key), most
-  // recently inserted first (a deterministic order).
+  // Sorts the items inserted so far by bucket; queries need it.
+  void Build();
+
+  // The entries of the bucket of (cell, key): a range [begin, end) of
+  // indices into items(), in insertion order (deterministic). Empty if no
+  // item went to that bucket in this round.
+  struct Range {
+    int begin = 0;
+    int end = 0;
+  };
+  Range Find(const Eigen::Vector3i& cell, int key = 0) const {
+    const Slot& slot = slots_[Bucket(cell, key)];
+    if (slot.stamp != round_) return {};
+    return {slot.begin, slot.begin + slot.count};
+  }
+
+  // Every item of the round, grouped by bucket (after Build).
+  std::span<const int> items() const { return {items_.data(), static_cast<size_t>(num_items_)}; }
+  int num_items() const { return num_items_; }
+
+  // Calls visit(item) for every item in the bucket of (cell, key).
   template <typename Visit>
   void ForEach(const Eigen::Vector3i& cell, Visit&& visit, int key = 0) const {
-    const Slot& slot = slots_[Bucket(cell, key)];
-    if (slot.stamp != round_) return;
-    for (int e = slot.head; e >= 0; e = next_[e]) visit(item_[e]);
+    Range range = Find(cell, key);
+    for (int e = range.begin; e < range.end; ++e) visit(items_[e]);
   }
 
  private:
@@ -64,14 +90,17 @@ class SpatialHash {
   std::uint32_t round_ = 0;
   struct Slot {
     std::uint32_t stamp;  // round in which the bucket was last used
-    int head;             // its first entry
+    int begin;            // its first entry in items_ (after Build)
+    int count;            // its number of entries
   };
-  std::uint64_t table_size_ = 0;    // n, a prime
-  std::uint64_t modulo_magic_ = 0;  // 2^64 / n rounded up
-  std::vector<Slot> slots_;         // n
-  std::vector<int> next_;           // entries: next entry in the same bucket
-  std::vector<int> item_;           // entries: the item
-  int num_entries_ = 0;
+  std::uint64_t table_size_ = 0;      // n, a prime
+  std::uint64_t modulo_magic_ = 0;    // 2^64 / n rounded up
+  std::vector<Slot> slots_;           // n
+  std::vector<int> used_buckets_;     // buckets used in this round, in first-use order
+  std::vector<int> inserted_item_;    // per insertion: the item
+  std::vector<int> inserted_bucket_;  // per insertion: its bucket
+  std::vector<int> items_;            // the items, grouped by bucket (after Build)
+  int num_items_ = 0;
 };
 
 // The smallest prime >= n (n >= 2).

@@ -27,6 +27,7 @@ TEST(SpatialHash, BucketHoldsEveryItemOfItsCellAndTimeStampsForgetOldRounds) {
     hash.Reset(1.0, static_cast<int>(cells.size()));
     // each round inserts a different half of the items
     for (int i = round % 2; i < static_cast<int>(cells.size()); i += 2) hash.Insert(cells[i], i);
+    hash.Build();
     for (int i = 0; i < static_cast<int>(cells.size()); ++i) {
       std::vector<int> found;
       hash.ForEach(cells[i], [&](int item) { found.push_back(item); });
