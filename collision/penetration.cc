@@ -141,27 +141,17 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
   cell_size_ = options_.cell_size > 0.0 ? options_.cell_size
                : edge_count > 0         ? edge_sum / static_cast<double>(edge_count)
                                         : 1.0;
-  // broad phase: bounding boxes; per object B the region where a partner
-  // (an object that may collide with B, B itself with self-collision) can
-  // reach into it: the union of B's box's overlaps with the partners' boxes.
-  // Pairs by sweep and prune along x.
+  // broad phase: bounding boxes; per object B its partners (the objects
+  // whose boxes overlap B's and that may collide with it, B itself with
+  // self-collision), found by sweep and prune along x, and the region where
+  // they can reach into B: the union of the boxes' overlaps.
   object_lo_.resize(num_objects);
   object_hi_.resize(num_objects);
   for (int o = 0; o < num_objects; ++o) {
     object_lo_[o] = objects[o].positions->colwise().minCoeff().transpose();
     object_hi_[o] = objects[o].positions->colwise().maxCoeff().transpose();
   }
-  const double inf = std::numeric_limits<double>::infinity();
-  search_lo_.assign(num_objects, Eigen::Vector3d::Constant(inf));
-  search_hi_.assign(num_objects, Eigen::Vector3d::Constant(-inf));
-  auto add_overlap = [&](int a, int b) {
-    Eigen::Vector3d lo = object_lo_[a].cwiseMax(object_lo_[b]);
-    Eigen::Vector3d hi = object_hi_[a].cwiseMin(object_hi_[b]);
-    for (int o : {a, b}) {
-      search_lo_[o] = search_lo_[o].cwiseMin(lo);
-      search_hi_[o] = search_hi_[o].cwiseMax(hi);
-    }
-  };
+  pairs_.clear();
   sweep_order_.resize(num_objects);
   for (int o = 0; o < num_objects; ++o) sweep_order_[o] = o;
   std::sort(sweep_order_.begin(), sweep_order_.end(), [&](int a, int b) {
@@ -169,15 +159,34 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
   });
   for (int i = 0; i < num_objects; ++i) {
     const int a = sweep_order_[i];
-    if (objects[a].self_collision) add_overlap(a, a);
+    if (objects[a].self_collision) pairs_.push_back({a, a});
     for (int j = i + 1; j < num_objects && object_lo_[sweep_order_[j]].x() <= object_hi_[a].x();
          ++j) {
       const int b = sweep_order_[j];
       if (objects[a].rigid && objects[b].rigid) continue;  // the rigid engine's pair
       if (BoxesOverlap(object_lo_[a], object_hi_[a], object_lo_[b], object_hi_[b])) {
-        add_overlap(a, b);
+        pairs_.push_back({a, b});
+        pairs_.push_back({b, a});
       }
     }
+  }
+  // per object its partners, with the overlap of the two boxes, in the
+  // order found (deterministic)
+  partner_offset_.assign(num_objects + 1, 0);
+  for (const auto& pair : pairs_) ++partner_offset_[pair[0] + 1];
+  for (int o = 0; o < num_objects; ++o) partner_offset_[o + 1] += partner_offset_[o];
+  partners_.resize(pairs_.size());
+  partner_fill_.assign(partner_offset_.begin(), partner_offset_.end() - 1);
+  const double inf = std::numeric_limits<double>::infinity();
+  search_lo_.assign(num_objects, Eigen::Vector3d::Constant(inf));
+  search_hi_.assign(num_objects, Eigen::Vector3d::Constant(-inf));
+  for (const auto& [b, a] : pairs_) {
+    Partner& partner = partners_[partner_fill_[b]++];
+    partner.object = a;
+    partner.lo = object_lo_[a].cwiseMax(object_lo_[b]);
+    partner.hi = object_hi_[a].cwiseMin(object_hi_[b]);
+    search_lo_[b] = search_lo_[b].cwiseMin(partner.lo);
+    search_hi_[b] = search_hi_[b].cwiseMax(partner.hi);
   }
 }
 
@@ -201,7 +210,8 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
   for (int g = 0; g < num_vertices; ++g) num_hashed += vertex_hashed_[g];
   hash_.Reset(cell_size_, num_hashed);
   for (int g = 0; g < num_vertices; ++g) {
-    if (vertex_hashed_[g]) hash_.Insert(vertex_cell_[g], g);
+    // keyed by object: a tetrahedron looks up its partners' vertices only
+    if (vertex_hashed_[g]) hash_.Insert(vertex_cell_[g], g, vertex_object_[g] + 1);
   }
   hash_.Build();
   // what the tetrahedra test, in the hash's bucket order: one read per vertex
@@ -240,43 +250,51 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
         const auto tet = object_b.mesh->tets().row(t);
         Eigen::Vector3d corner[4];
         for (int i = 0; i < 4; ++i) corner[i] = x.row(tet[i]).transpose();
-        Eigen::Vector3d lo = corner[0].cwiseMin(corner[1]).cwiseMin(corner[2].cwiseMin(corner[3]));
-        Eigen::Vector3d hi = corner[0].cwiseMax(corner[1]).cwiseMax(corner[2].cwiseMax(corner[3]));
-        // broad phase: nothing can be inside
-        if (!BoxesOverlap(lo, hi, search_lo_[b], search_hi_[b])) return;
-        // (a bucket also holds vertices of other cells hashed to it, and a
-        // vertex may be met twice when two of the box's cells share a
-        // bucket: the box test takes what is in the box, duplicates go below)
-        auto test = [&](const HashedVertex& candidate) {
-          if (!InBox(candidate.position, lo, hi)) return;
-          const int a = candidate.object;
-          if (a == b) {
-            if (!object_b.self_collision) return;
-            const int v = candidate.vertex - vertex_offset_[a];
-            if (v == tet[0] || v == tet[1] || v == tet[2] || v == tet[3]) return;
-          } else if (object_b.rigid && objects[a].rigid) {
-            return;
+        const Eigen::Vector3d tet_lo =
+            corner[0].cwiseMin(corner[1]).cwiseMin(corner[2].cwiseMin(corner[3]));
+        const Eigen::Vector3d tet_hi =
+            corner[0].cwiseMax(corner[1]).cwiseMax(corner[2].cwiseMax(corner[3]));
+        if (!BoxesOverlap(tet_lo, tet_hi, search_lo_[b], search_hi_[b])) return;  // broad phase
+        for (int i = partner_offset_[b]; i < partner_offset_[b + 1]; ++i) {
+          // partner A's vertices inside the tet lie in the tet's box clipped
+          // to the overlap of A's and B's boxes
+          const Partner& partner = partners_[i];
+          const int a = partner.object;
+          const Eigen::Vector3d lo = tet_lo.cwiseMax(partner.lo);
+          const Eigen::Vector3d hi = tet_hi.cwiseMin(partner.hi);
+          if ((lo.array() > hi.array()).any()) continue;
+          // (a bucket may also hold vertices of other cells and objects
+          // hashed to it, and a vertex may be met twice when two of the
+          // box's cells share a bucket: duplicates are dropped below)
+          auto test = [&](const HashedVertex& candidate) {
+            if ((candidate.object != a) | !InBox(candidate.position, lo, hi)) return;
+            if (a == b) {  // self-collision: not the tet's own vertices
+              const int v = candidate.vertex - vertex_offset_[a];
+              if (v == tet[0] || v == tet[1] || v == tet[2] || v == tet[3]) return;
+            }
+            Eigen::Vector4d l;
+            if (!TetBarycentric(corner[0], corner[1], corner[2], corner[3], candidate.position,
+                                l)) {
+              return;
+            }
+            // (kBarycentricTolerance: a vertex on a face shared by two tets
+            // is inside both in exact arithmetic, but rounding may put it
+            // just outside each; the deepest tet is kept below)
+            if (l.minCoeff() >= -kBarycentricTolerance)
+              found.push_back({candidate.vertex, b, t, l});
+          };
+          const Eigen::Vector3i cell_lo = hash_.CellOf(lo);
+          const Eigen::Vector3i cell_hi = hash_.CellOf(hi);
+          if (CellCount(cell_lo, cell_hi) > kMaxTetCells) {
+            for (const HashedVertex& candidate : hashed_) test(candidate);
+            continue;
           }
-          Eigen::Vector4d l;
-          if (!TetBarycentric(corner[0], corner[1], corner[2], corner[3], candidate.position, l)) {
-            return;
-          }
-          // (kBarycentricTolerance: a vertex on a face shared by two tets is
-          // inside both in exact arithmetic, but rounding may put it just
-          // outside each; the deepest tet is kept below)
-          if (l.minCoeff() >= -kBarycentricTolerance) found.push_back({candidate.vertex, b, t, l});
-        };
-        const Eigen::Vector3i cell_lo = hash_.CellOf(lo);
-        const Eigen::Vector3i cell_hi = hash_.CellOf(hi);
-        if (CellCount(cell_lo, cell_hi) > kMaxTetCells) {
-          for (const HashedVertex& candidate : hashed_) test(candidate);
-          return;
-        }
-        for (int k = cell_lo.z(); k <= cell_hi.z(); ++k) {
-          for (int j = cell_lo.y(); j <= cell_hi.y(); ++j) {
-            for (int i = cell_lo.x(); i <= cell_hi.x(); ++i) {
-              const SpatialHash::Range range = hash_.Find({i, j, k});
-              for (int e = range.begin; e < range.end; ++e) test(hashed_[e]);
+          for (int k = cell_lo.z(); k <= cell_hi.z(); ++k) {
+            for (int j = cell_lo.y(); j <= cell_hi.y(); ++j) {
+              for (int i = cell_lo.x(); i <= cell_hi.x(); ++i) {
+                const SpatialHash::Range range = hash_.Find({i, j, k}, a + 1);
+                for (int e = range.begin; e < range.end; ++e) test(hashed_[e]);
+              }
             }
           }
         }
@@ -523,7 +541,7 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
           crossing.valid = true;
         }
       },
-      Schedule::kDynamic, 64);
+      Schedule::kDynamic, 16);
   int edges = 0;
   for (const Crossing& crossing : crossings_) edges += crossing.edge;
   stats_.intersection_edges = edges;

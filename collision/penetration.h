@@ -211,7 +211,15 @@ class PenetrationSolver {
   std::vector<Eigen::Vector3d> object_lo_, object_hi_;  // #objects
   std::vector<Eigen::Vector3d> search_lo_, search_hi_;  // #objects
   std::vector<int> sweep_order_;                        // #objects, by object_lo_.x
-  std::vector<int> tet_offset_;                         // #objects + 1: global tet index
+  std::vector<std::array<int, 2>> pairs_;               // (object, partner), both ways
+  struct Partner {
+    Eigen::Vector3d lo, hi;  // the overlap of the two objects' boxes
+    int object;
+  };
+  std::vector<int> partner_offset_;  // #objects + 1
+  std::vector<int> partner_fill_;    // #objects (scratch)
+  std::vector<Partner> partners_;    // per object, its partners
+  std::vector<int> tet_offset_;      // #objects + 1: global tet index
 
   SpatialHash hash_;  // stage 1: vertices
   std::vector<Eigen::Vector3i> vertex_cell_;
