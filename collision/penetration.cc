@@ -27,6 +27,9 @@ constexpr long kMaxTriangleCells = 64;
 // Tetrahedra whose bounding box covers more cells than this test candidate
 // vertices directly instead of cell by cell.
 constexpr long kMaxTetCells = 512;
+// Objects with more partners than this look up all vertices near a
+// tetrahedron at once instead of partner by partner (stage 1).
+constexpr int kMaxKeyedPartners = 4;
 // Objects with at most this many surface triangles (the paper's 20-tet
 // spheres) are not hashed: a query tests their few triangles directly,
 // which is cheaper than walking the cells of a segment or a search shell.
@@ -208,15 +211,26 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
   });
   int num_hashed = 0;
   for (int g = 0; g < num_vertices; ++g) num_hashed += vertex_hashed_[g];
-  hash_.Reset(cell_size_, num_hashed);
+  // a tetrahedron of an object with few partners looks up each partner's
+  // vertices in the buckets of (cell, partner + 1); one of an object with
+  // many (a pile of small bodies) looks up all vertices at once, in the
+  // buckets of (cell, 0), which would cost one lookup per cell and partner
+  bool keyed = false, unkeyed = false;
+  for (int o = 0; o < num_objects; ++o) {
+    const int count = partner_offset_[o + 1] - partner_offset_[o];
+    keyed |= count > 0 && count <= kMaxKeyedPartners;
+    unkeyed |= count > kMaxKeyedPartners;
+  }
+  hash_.Reset(cell_size_, num_hashed * (keyed + unkeyed));
   for (int g = 0; g < num_vertices; ++g) {
-    // keyed by object: a tetrahedron looks up its partners' vertices only
-    if (vertex_hashed_[g]) hash_.Insert(vertex_cell_[g], g, vertex_object_[g] + 1);
+    if (!vertex_hashed_[g]) continue;
+    if (keyed) hash_.Insert(vertex_cell_[g], g, vertex_object_[g] + 1);
+    if (unkeyed) hash_.Insert(vertex_cell_[g], g);
   }
   hash_.Build();
-  // what the tetrahedra test, in the hash's bucket order: one read per vertex
-  hashed_.resize(num_hashed);
-  for (int e = 0; e < num_hashed; ++e) {
+  // what the tetrahedra test, in the hash's bucket order: one read per entry
+  hashed_.resize(hash_.num_items());
+  for (int e = 0; e < hash_.num_items(); ++e) {
     const int g = hash_.items()[e];
     hashed_[e] = {Position(g), g, vertex_object_[g]};
   }
@@ -255,6 +269,53 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
         const Eigen::Vector3d tet_hi =
             corner[0].cwiseMax(corner[1]).cwiseMax(corner[2].cwiseMax(corner[3]));
         if (!BoxesOverlap(tet_lo, tet_hi, search_lo_[b], search_hi_[b])) return;  // broad phase
+        // the vertex of object A (a partner of B) in the tet's box: inside?
+        auto test = [&](const HashedVertex& candidate, int a) {
+          if (a == b) {  // self-collision: not the tet's own vertices
+            const int v = candidate.vertex - vertex_offset_[a];
+            if (v == tet[0] || v == tet[1] || v == tet[2] || v == tet[3]) return;
+          }
+          Eigen::Vector4d l;
+          if (!TetBarycentric(corner[0], corner[1], corner[2], corner[3], candidate.position, l)) {
+            return;
+          }
+          // (kBarycentricTolerance: a vertex on a face shared by two tets is
+          // inside both in exact arithmetic, but rounding may put it just
+          // outside each; the deepest tet is kept below)
+          if (l.minCoeff() >= -kBarycentricTolerance) found.push_back({candidate.vertex, b, t, l});
+        };
+        // (a bucket may also hold vertices of other cells and objects hashed
+        // to it, and a vertex may be met twice when two of the box's cells
+        // share a bucket: duplicates are dropped below)
+        auto for_each_cell = [&](const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, int key,
+                                 auto&& visit) {
+          const Eigen::Vector3i cell_lo = hash_.CellOf(lo);
+          const Eigen::Vector3i cell_hi = hash_.CellOf(hi);
+          if (CellCount(cell_lo, cell_hi) > kMaxTetCells) {
+            for (const HashedVertex& candidate : hashed_) visit(candidate);
+            return;
+          }
+          for (int k = cell_lo.z(); k <= cell_hi.z(); ++k) {
+            for (int j = cell_lo.y(); j <= cell_hi.y(); ++j) {
+              for (int i = cell_lo.x(); i <= cell_hi.x(); ++i) {
+                const SpatialHash::Range range = hash_.Find({i, j, k}, key);
+                for (int e = range.begin; e < range.end; ++e) visit(hashed_[e]);
+              }
+            }
+          }
+        };
+        if (partner_offset_[b + 1] - partner_offset_[b] > kMaxKeyedPartners) {
+          // all vertices in the tet's box clipped to B's search box
+          const Eigen::Vector3d lo = tet_lo.cwiseMax(search_lo_[b]);
+          const Eigen::Vector3d hi = tet_hi.cwiseMin(search_hi_[b]);
+          for_each_cell(lo, hi, 0, [&](const HashedVertex& candidate) {
+            if (!InBox(candidate.position, lo, hi)) return;
+            const int a = candidate.object;
+            if (a == b ? !object_b.self_collision : object_b.rigid && objects[a].rigid) return;
+            test(candidate, a);
+          });
+          return;
+        }
         for (int i = partner_offset_[b]; i < partner_offset_[b + 1]; ++i) {
           // partner A's vertices inside the tet lie in the tet's box clipped
           // to the overlap of A's and B's boxes
@@ -263,40 +324,9 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
           const Eigen::Vector3d lo = tet_lo.cwiseMax(partner.lo);
           const Eigen::Vector3d hi = tet_hi.cwiseMin(partner.hi);
           if ((lo.array() > hi.array()).any()) continue;
-          // (a bucket may also hold vertices of other cells and objects
-          // hashed to it, and a vertex may be met twice when two of the
-          // box's cells share a bucket: duplicates are dropped below)
-          auto test = [&](const HashedVertex& candidate) {
-            if ((candidate.object != a) | !InBox(candidate.position, lo, hi)) return;
-            if (a == b) {  // self-collision: not the tet's own vertices
-              const int v = candidate.vertex - vertex_offset_[a];
-              if (v == tet[0] || v == tet[1] || v == tet[2] || v == tet[3]) return;
-            }
-            Eigen::Vector4d l;
-            if (!TetBarycentric(corner[0], corner[1], corner[2], corner[3], candidate.position,
-                                l)) {
-              return;
-            }
-            // (kBarycentricTolerance: a vertex on a face shared by two tets
-            // is inside both in exact arithmetic, but rounding may put it
-            // just outside each; the deepest tet is kept below)
-            if (l.minCoeff() >= -kBarycentricTolerance)
-              found.push_back({candidate.vertex, b, t, l});
-          };
-          const Eigen::Vector3i cell_lo = hash_.CellOf(lo);
-          const Eigen::Vector3i cell_hi = hash_.CellOf(hi);
-          if (CellCount(cell_lo, cell_hi) > kMaxTetCells) {
-            for (const HashedVertex& candidate : hashed_) test(candidate);
-            continue;
-          }
-          for (int k = cell_lo.z(); k <= cell_hi.z(); ++k) {
-            for (int j = cell_lo.y(); j <= cell_hi.y(); ++j) {
-              for (int i = cell_lo.x(); i <= cell_hi.x(); ++i) {
-                const SpatialHash::Range range = hash_.Find({i, j, k}, a + 1);
-                for (int e = range.begin; e < range.end; ++e) test(hashed_[e]);
-              }
-            }
-          }
+          for_each_cell(lo, hi, a + 1, [&](const HashedVertex& candidate) {
+            if ((candidate.object == a) & InBox(candidate.position, lo, hi)) test(candidate, a);
+          });
         }
       },
       Schedule::kDynamic, 256);
