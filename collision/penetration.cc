@@ -203,7 +203,7 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
   vertex_cell_.resize(num_vertices);
   vertex_hashed_.resize(num_vertices);
   hash_.Reset(cell_size_, 0);  // sets the cell size for CellOf; sized below
-  ParallelFor(ThreadsFor(num_threads, num_vertices, 16384), 0, num_vertices, [&](int g) {
+  ParallelFor(ThreadsFor(num_threads, num_vertices, 4096), 0, num_vertices, [&](int g) {
     const int a = vertex_object_[g];
     Eigen::Vector3d p = Position(g);
     vertex_hashed_[g] = InBox(p, search_lo_[a], search_hi_[a]);
@@ -380,11 +380,22 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
   object_small_.assign(num_objects, 0);
   object_entry_begin_.assign(num_objects, 0);
   object_entry_end_.assign(num_objects, 0);
+  // current vertex normals, object by object in parallel
+  penetrated_list_.clear();
   for (int o = 0; o < num_objects; ++o) {
-    if (!object_penetrated_[o]) continue;
-    const Positions& x = *objects[o].positions;
+    if (object_penetrated_[o]) penetrated_list_.push_back(o);
+  }
+  const int num_penetrated = static_cast<int>(penetrated_list_.size());
+  ParallelFor(
+      num_triangles >= 4096 ? ThreadsFor(options_.num_threads, num_penetrated, 1) : 1, 0,
+      num_penetrated,
+      [&](int i) {
+        const int o = penetrated_list_[i];
+        ComputeVertexNormals(*objects[o].positions, objects[o].mesh->surface(), normals_[o]);
+      },
+      Schedule::kDynamic, 1);
+  for (int o : penetrated_list_) {
     const Triangles& surface = objects[o].mesh->surface();
-    ComputeVertexNormals(x, surface, normals_[o]);
     object_cell_lo_[o] = triangle_hash_.CellOf(object_lo_[o]);
     object_cell_hi_[o] = triangle_hash_.CellOf(object_hi_[o]);
     object_fully_hashed_[o] = full;
@@ -588,7 +599,7 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> /*o
   layer_.assign(num_hits, -1);
   // a crossing closer than this to p means p is on the surface: depth 0
   const double on_surface = 1e-9 * cell_size_;
-  ParallelFor(ThreadsFor(options_.num_threads, num_hits, 2048), 0, num_hits, [&](int h) {
+  ParallelFor(ThreadsFor(options_.num_threads, num_hits, 1024), 0, num_hits, [&](int h) {
     const Eigen::Vector3d p = Position(hits_[h].vertex);
     double weight_sum = 0.0;
     double depth_sum = 0.0;
@@ -656,7 +667,7 @@ void PenetrationSolver::Propagate(std::span<const CollisionObject> objects) {
     }
     std::sort(next_frontier_.begin(), next_frontier_.end());
     const int layer_size = static_cast<int>(next_frontier_.size());
-    ParallelFor(ThreadsFor(options_.num_threads, layer_size, 1024), 0, layer_size, [&](int i) {
+    ParallelFor(ThreadsFor(options_.num_threads, layer_size, 256), 0, layer_size, [&](int i) {
       const int h = next_frontier_[i];
       const int g = hits_[h].vertex;
       const int a = vertex_object_[g];
@@ -824,8 +835,8 @@ void PenetrationSolver::ComputeClosest(std::span<const CollisionObject> objects,
           // containing tet's centroid as the inside
           const auto tet = objects[b].mesh->tets().row(hits_[h].tet);
           Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
-          for (int i = 0; i < 4; ++i)
-            centroid += objects[b].positions->row(tet[i]).transpose() / 4.0;
+          for (int c = 0; c < 4; ++c)
+            centroid += objects[b].positions->row(tet[c]).transpose() / 4.0;
           Eigen::Vector3d out = p - centroid;
           direction_[h] =
               out.norm() > 0.0 ? Eigen::Vector3d(out.normalized()) : Eigen::Vector3d::UnitZ();

@@ -235,6 +235,7 @@ class PenetrationSolver {
   std::vector<int> large_triangles_;                 // entries too large to hash
   std::vector<TriangleStamps> thread_seen_;          // #threads
   std::vector<char> object_penetrated_;
+  std::vector<int> penetrated_list_;  // the objects with object_penetrated_
   std::vector<char> object_fully_hashed_;
   std::vector<char> object_small_;  // #objects: surface tested directly, not hashed
   std::vector<int> object_entry_begin_, object_entry_end_;        // #objects: its triangle entries
