@@ -48,6 +48,19 @@ bool InBox(const Eigen::Vector3d& p, const Eigen::Vector3d& lo, const Eigen::Vec
          (lo.z() <= p.z()) & (p.z() <= hi.z());
 }
 
+// Grows a bounding box by kBoxMargin times its largest extent on every side.
+// The inside and crossing tests accept points a relative 1e-12 outside
+// (kBarycentricTolerance, the segment-triangle tolerance), so a point on a
+// face may lie outside the exact box by a rounding error and still count;
+// the broad-phase boxes must not drop it.
+constexpr double kBoxMargin = 1e-9;
+
+void Inflate(Eigen::Vector3d& lo, Eigen::Vector3d& hi) {
+  const Eigen::Vector3d margin = Eigen::Vector3d::Constant(kBoxMargin * (hi - lo).maxCoeff());
+  lo -= margin;
+  hi += margin;
+}
+
 // How many of the num_threads threads a loop of n items should use: one per
 // min_per_thread items at least. Waking and joining a team costs about as
 // much as a few thousand cheap iterations, so short loops run on one.
@@ -153,6 +166,7 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
   for (int o = 0; o < num_objects; ++o) {
     object_lo_[o] = objects[o].positions->colwise().minCoeff().transpose();
     object_hi_[o] = objects[o].positions->colwise().maxCoeff().transpose();
+    Inflate(object_lo_[o], object_hi_[o]);
   }
   pairs_.clear();
   sweep_order_.resize(num_objects);
@@ -264,10 +278,11 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
         const auto tet = object_b.mesh->tets().row(t);
         Eigen::Vector3d corner[4];
         for (int i = 0; i < 4; ++i) corner[i] = x.row(tet[i]).transpose();
-        const Eigen::Vector3d tet_lo =
+        Eigen::Vector3d tet_lo =
             corner[0].cwiseMin(corner[1]).cwiseMin(corner[2].cwiseMin(corner[3]));
-        const Eigen::Vector3d tet_hi =
+        Eigen::Vector3d tet_hi =
             corner[0].cwiseMax(corner[1]).cwiseMax(corner[2].cwiseMax(corner[3]));
+        Inflate(tet_lo, tet_hi);
         if (!BoxesOverlap(tet_lo, tet_hi, search_lo_[b], search_hi_[b])) return;  // broad phase
         // the vertex of object A (a partner of B) in the tet's box: inside?
         auto test = [&](const HashedVertex& candidate, int a) {
@@ -380,6 +395,8 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
   object_small_.assign(num_objects, 0);
   object_entry_begin_.assign(num_objects, 0);
   object_entry_end_.assign(num_objects, 0);
+  object_rest_begin_.assign(num_objects, 0);
+  object_rest_end_.assign(num_objects, 0);
   // current vertex normals, object by object in parallel
   penetrated_list_.clear();
   for (int o = 0; o < num_objects; ++o) {
@@ -419,9 +436,11 @@ void PenetrationSolver::HashRemainingTriangles(std::span<const CollisionObject> 
   if (object_fully_hashed_[b]) return;
   object_fully_hashed_[b] = 1;
   const Triangles& surface = objects[b].mesh->surface();
+  object_rest_begin_[b] = static_cast<int>(triangles_.size());
   for (int f = 0; f < surface.rows(); ++f) {
     AddTriangle(objects, b, f, /*grid=*/true, &search_lo_[b], &search_hi_[b], /*outside=*/true);
   }
+  object_rest_end_[b] = static_cast<int>(triangles_.size());
 }
 
 void PenetrationSolver::AddTriangle(std::span<const CollisionObject> objects, int object, int f,
@@ -434,6 +453,7 @@ void PenetrationSolver::AddTriangle(std::span<const CollisionObject> objects, in
   TriangleEntry entry;
   entry.lo = geometry.corner[0].cwiseMin(geometry.corner[1]).cwiseMin(geometry.corner[2]);
   entry.hi = geometry.corner[0].cwiseMax(geometry.corner[1]).cwiseMax(geometry.corner[2]);
+  Inflate(entry.lo, entry.hi);
   if (region_lo != nullptr && BoxesOverlap(entry.lo, entry.hi, *region_lo, *region_hi) == outside) {
     return;
   }
@@ -510,8 +530,9 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
           double best_t = std::numeric_limits<double>::infinity();
           int best_entry = -1;
           double best_u = 0.0, best_v = 0.0;
-          const Eigen::Vector3d segment_lo = q.cwiseMin(p);
-          const Eigen::Vector3d segment_hi = q.cwiseMax(p);
+          Eigen::Vector3d segment_lo = q.cwiseMin(p);
+          Eigen::Vector3d segment_hi = q.cwiseMax(p);
+          Inflate(segment_lo, segment_hi);
           auto test = [&](int index) {
             const TriangleEntry& entry = triangles_[index];
             if (entry.object != b || !BoxesOverlap(entry.lo, entry.hi, segment_lo, segment_hi)) {
@@ -756,9 +777,20 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
   const Eigen::Vector3i center = triangle_hash_.CellOf(p);
   const Eigen::Vector3i& box_lo = object_cell_lo_[b];  // B's bounding box in cells
   const Eigen::Vector3i& box_hi = object_cell_hi_[b];
+  // with cells much smaller than the distance to the surface the shells
+  // would visit more cells than B has triangles: then test them all
+  const long num_entries = (object_entry_end_[b] - object_entry_begin_[b]) +
+                           (object_rest_end_[b] - object_rest_begin_[b]);
+  long cells_visited = 0;
   for (int k = 0;; ++k) {
     Eigen::Vector3i lo = (center.array() - k).matrix().cwiseMax(box_lo);
     Eigen::Vector3i hi = (center.array() + k).matrix().cwiseMin(box_hi);
+    cells_visited += CellCount(lo, hi);
+    if (cells_visited > 4 * num_entries) {
+      for (int entry = object_entry_begin_[b]; entry < object_entry_end_[b]; ++entry) test(entry);
+      for (int entry = object_rest_begin_[b]; entry < object_rest_end_[b]; ++entry) test(entry);
+      break;
+    }
     for (int cz = lo.z(); cz <= hi.z(); ++cz) {
       for (int cy = lo.y(); cy <= hi.y(); ++cy) {
         for (int cx = lo.x(); cx <= hi.x(); ++cx) {

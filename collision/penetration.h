@@ -238,7 +238,9 @@ class PenetrationSolver {
   std::vector<int> penetrated_list_;  // the objects with object_penetrated_
   std::vector<char> object_fully_hashed_;
   std::vector<char> object_small_;  // #objects: surface tested directly, not hashed
-  std::vector<int> object_entry_begin_, object_entry_end_;        // #objects: its triangle entries
+  std::vector<int> object_entry_begin_, object_entry_end_;  // #objects: its triangle entries
+  std::vector<int> object_rest_begin_, object_rest_end_;    // #objects: those added for closest
+                                                            // features (HashRemainingTriangles)
   std::vector<Eigen::Vector3i> object_cell_lo_, object_cell_hi_;  // #objects: bounding box in cells
 
   std::vector<int> crossing_offset_;  // #hits + 1: slots for the hit's neighbours

@@ -87,6 +87,43 @@ TEST(CollidingPoints, HashMatchesBruteForceOnRandomScenes) {
   }
 }
 
+TEST(CollidingPoints, HashMatchesBruteForceInCrowdedScenes) {
+  // a pile of small bodies in and around a large one, and a folded bar with
+  // self-collision: objects with many partners read every vertex near a
+  // tetrahedron at once, the others their partners' vertices only; both
+  // against brute force
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> offset(-0.07, 0.07);
+  std::uniform_real_distribution<double> angle(0.0, std::numbers::pi);
+  const char* shapes[] = {"sphere:size=0.03:res=0", "box:size=0.03,0.02,0.025:res=2",
+                          "capsule:size=0.01,0.02:res=2"};
+  for (int trial = 0; trial < 4; ++trial) {
+    TestScene scene;
+    scene.Add(TetMesh::Build(MakeShape("box:size=0.12,0.12,0.12:res=4")), Pose({0, 0, 0}),
+              /*rigid=*/trial % 2 == 1);
+    for (int k = 0; k < 14; ++k) {
+      Eigen::Vector3d axis(offset(rng), offset(rng), offset(rng) + 0.01);
+      scene.Add(TetMesh::Build(MakeShape(shapes[k % 3])),
+                Pose({offset(rng), offset(rng), offset(rng)}, angle(rng), axis),
+                /*rigid=*/k % 5 == 4);
+    }
+    // a bar folded into itself, lying across the pile
+    int bar = scene.Add(TetMesh::Build(MakeShape("box:size=0.2,0.02,0.02:res=10,1,1")),
+                        Pose({0, 0.01 * trial, 0}), false, /*self_collision=*/true);
+    Positions& x = *scene.positions[bar];
+    for (Eigen::Index v = 0; v < x.rows(); ++v) {
+      if (x(v, 0) > 0.19) x(v, 0) = -0.03;
+    }
+    SCOPED_TRACE(trial);
+    for (double cell : {0.0, 0.002, 0.2}) {
+      SCOPED_TRACE(cell);
+      PenetrationOptions options;
+      options.cell_size = cell;
+      ExpectSameCollidingPoints(scene, options);
+    }
+  }
+}
+
 TEST(CollidingPoints, VerticesOnCellBoundaries) {
   // grid-aligned boxes whose vertices sit exactly on cell boundaries, and
   // touch exactly along faces
