@@ -389,6 +389,10 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
   triangle_hash_.Reset(cell_size_, num_triangles);
   triangles_.clear();
   triangle_geometry_.clear();
+  for (int k = 0; k < 3; ++k) {
+    triangle_lo_[k].clear();
+    triangle_hi_[k].clear();
+  }
   large_triangles_.clear();
   object_cell_lo_.resize(num_objects);
   object_cell_hi_.resize(num_objects);
@@ -467,6 +471,10 @@ void PenetrationSolver::AddTriangle(std::span<const CollisionObject> objects, in
   const int index = static_cast<int>(triangles_.size());
   triangles_.push_back(entry);
   triangle_geometry_.push_back(geometry);
+  for (int k = 0; k < 3; ++k) {
+    triangle_lo_[k].push_back(entry.lo[k]);
+    triangle_hi_[k].push_back(entry.hi[k]);
+  }
   if (!grid) return;
   if (CellCount(geometry.cell_lo, geometry.cell_hi) > kMaxTriangleCells) {
     large_triangles_.push_back(index);
@@ -533,14 +541,11 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
           Eigen::Vector3d segment_lo = q.cwiseMin(p);
           Eigen::Vector3d segment_hi = q.cwiseMax(p);
           Inflate(segment_lo, segment_hi);
-          auto test = [&](int index) {
-            const TriangleEntry& entry = triangles_[index];
-            if (entry.object != b || !BoxesOverlap(entry.lo, entry.hi, segment_lo, segment_hi)) {
-              return;
-            }
+          // the crossing with an entry of B whose box overlaps the segment's
+          auto test_triangle = [&](int index) {
             if (a == b) {  // self-collision: the edge's own triangles do not count
               for (int k = 0; k < 3; ++k) {
-                const int c = surface_b(entry.face, k);
+                const int c = surface_b(triangles_[index].face, k);
                 if (c == v || c == q_local) return;
               }
             }
@@ -558,10 +563,30 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
               best_v = w;
             }
           };
+          auto test = [&](int index) {
+            const TriangleEntry& entry = triangles_[index];
+            if (entry.object == b && BoxesOverlap(entry.lo, entry.hi, segment_lo, segment_hi)) {
+              test_triangle(index);
+            }
+          };
           if (object_small_[b]) {
-            // a small object's triangles are all in its list, none in the grid
-            for (int index = object_entry_begin_[b]; index < object_entry_end_[b]; ++index) {
-              test(index);
+            // a small object's triangles are all in its list, none in the
+            // grid: their boxes are tested in a row (a loop the compiler
+            // vectorises), then the few that overlap
+            const int begin = object_entry_begin_[b];
+            const int count = object_entry_end_[b] - begin;
+            const double* lo[3] = {triangle_lo_[0].data() + begin, triangle_lo_[1].data() + begin,
+                                   triangle_lo_[2].data() + begin};
+            const double* hi[3] = {triangle_hi_[0].data() + begin, triangle_hi_[1].data() + begin,
+                                   triangle_hi_[2].data() + begin};
+            std::array<unsigned char, kSmallSurface> overlaps;
+            for (int i = 0; i < count; ++i) {
+              overlaps[i] = (lo[0][i] <= segment_hi.x()) & (segment_lo.x() <= hi[0][i]) &
+                            (lo[1][i] <= segment_hi.y()) & (segment_lo.y() <= hi[1][i]) &
+                            (lo[2][i] <= segment_hi.z()) & (segment_lo.z() <= hi[2][i]);
+            }
+            for (int i = 0; i < count; ++i) {
+              if (overlaps[i]) test_triangle(begin + i);
             }
           } else {
             for (int index : large_triangles_) test(index);
