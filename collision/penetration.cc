@@ -390,8 +390,8 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
   triangles_.clear();
   triangle_geometry_.clear();
   for (int k = 0; k < 3; ++k) {
-    triangle_lo_[k].clear();
-    triangle_hi_[k].clear();
+    small_lo_[k].clear();
+    small_hi_[k].clear();
   }
   large_triangles_.clear();
   object_cell_lo_.resize(num_objects);
@@ -400,6 +400,7 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
   object_entry_begin_.assign(num_objects, 0);
   object_entry_end_.assign(num_objects, 0);
   object_rest_begin_.assign(num_objects, 0);
+  object_small_begin_.assign(num_objects, 0);
   object_rest_end_.assign(num_objects, 0);
   // current vertex normals, object by object in parallel
   penetrated_list_.clear();
@@ -422,6 +423,7 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
     object_fully_hashed_[o] = full;
     object_small_[o] = surface.rows() <= kSmallSurface;
     object_entry_begin_[o] = static_cast<int>(triangles_.size());
+    object_small_begin_[o] = static_cast<int>(small_lo_[0].size());
     if (object_small_[o]) object_fully_hashed_[o] = 1;
     for (int f = 0; f < surface.rows(); ++f) {
       if (object_small_[o]) {
@@ -471,9 +473,11 @@ void PenetrationSolver::AddTriangle(std::span<const CollisionObject> objects, in
   const int index = static_cast<int>(triangles_.size());
   triangles_.push_back(entry);
   triangle_geometry_.push_back(geometry);
-  for (int k = 0; k < 3; ++k) {
-    triangle_lo_[k].push_back(entry.lo[k]);
-    triangle_hi_[k].push_back(entry.hi[k]);
+  if (!grid) {  // a small object's: its box by coordinate too
+    for (int k = 0; k < 3; ++k) {
+      small_lo_[k].push_back(entry.lo[k]);
+      small_hi_[k].push_back(entry.hi[k]);
+    }
   }
   if (!grid) return;
   if (CellCount(geometry.cell_lo, geometry.cell_hi) > kMaxTriangleCells) {
@@ -575,10 +579,11 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
             // vectorises), then the few that overlap
             const int begin = object_entry_begin_[b];
             const int count = object_entry_end_[b] - begin;
-            const double* lo[3] = {triangle_lo_[0].data() + begin, triangle_lo_[1].data() + begin,
-                                   triangle_lo_[2].data() + begin};
-            const double* hi[3] = {triangle_hi_[0].data() + begin, triangle_hi_[1].data() + begin,
-                                   triangle_hi_[2].data() + begin};
+            const int first = object_small_begin_[b];
+            const double* lo[3] = {small_lo_[0].data() + first, small_lo_[1].data() + first,
+                                   small_lo_[2].data() + first};
+            const double* hi[3] = {small_hi_[0].data() + first, small_hi_[1].data() + first,
+                                   small_hi_[2].data() + first};
             std::array<unsigned char, kSmallSurface> overlaps;
             for (int i = 0; i < count; ++i) {
               overlaps[i] = (lo[0][i] <= segment_hi.x()) & (segment_lo.x() <= hi[0][i]) &

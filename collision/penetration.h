@@ -231,10 +231,12 @@ class PenetrationSolver {
 
   SpatialHash triangle_hash_;             // stage 2 and closest features: surface triangles
   std::vector<TriangleEntry> triangles_;  // the entries, by object
-  std::vector<TriangleGeometry> triangle_geometry_;      // per entry
-  std::vector<double> triangle_lo_[3], triangle_hi_[3];  // per entry: its box, by coordinate
-  std::vector<int> large_triangles_;                     // entries too large to hash
-  std::vector<TriangleStamps> thread_seen_;              // #threads
+  std::vector<TriangleGeometry> triangle_geometry_;  // per entry
+  // small objects' entries: their boxes by coordinate, in entry order
+  std::vector<double> small_lo_[3], small_hi_[3];
+  std::vector<int> object_small_begin_;      // #objects: its first box there
+  std::vector<int> large_triangles_;         // entries too large to hash
+  std::vector<TriangleStamps> thread_seen_;  // #threads
   std::vector<char> object_penetrated_;
   std::vector<int> penetrated_list_;  // the objects with object_penetrated_
   std::vector<char> object_fully_hashed_;
