@@ -92,6 +92,7 @@ void RunDepth(const DepthOptions& options) {
                       {"stage_ms",
                        {{"hash", timings.hash * 1e3},
                         {"inside", timings.inside * 1e3},
+                        {"surfaces", timings.surfaces * 1e3},
                         {"intersect", timings.intersect * 1e3},
                         {"border", timings.border * 1e3},
                         {"propagate", timings.propagate * 1e3},

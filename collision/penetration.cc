@@ -55,7 +55,7 @@ bool InBox(const Eigen::Vector3d& p, const Eigen::Vector3d& lo, const Eigen::Vec
 // the broad-phase boxes must not drop it.
 constexpr double kBoxMargin = 1e-9;
 
-void Inflate(Eigen::Vector3d& lo, Eigen::Vector3d& hi) {
+inline void Inflate(Eigen::Vector3d& lo, Eigen::Vector3d& hi) {
   const Eigen::Vector3d margin = Eigen::Vector3d::Constant(kBoxMargin * (hi - lo).maxCoeff());
   lo -= margin;
   hi += margin;
@@ -114,6 +114,7 @@ const std::vector<PenetrationResult>& PenetrationSolver::Solve(
   timings_ = {};
   stats_ = {};
   Prepare(objects);
+  timings_.hash = SecondsSince(start);
   FindCollidingPoints(objects);
   HashSurfaces(objects, /*full=*/options_.method == DepthMethod::kClosest);
   if (options_.method == DepthMethod::kConsistent) {
@@ -435,7 +436,7 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
     object_entry_end_[o] = static_cast<int>(triangles_.size());
   }
   triangle_hash_.Build();
-  timings_.hash += SecondsSince(start);
+  timings_.surfaces += SecondsSince(start);
 }
 
 void PenetrationSolver::HashRemainingTriangles(std::span<const CollisionObject> objects, int b) {

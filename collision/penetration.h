@@ -87,8 +87,9 @@ struct PenetrationOptions {
 
 // Wall-clock seconds spent in each stage of the last Solve().
 struct PenetrationTimings {
-  double hash = 0.0;       // stage 1a: hashing vertices (and surface triangles)
+  double hash = 0.0;       // stage 1a: broad phase and hashing vertices
   double inside = 0.0;     // stage 1b: vertex-in-tetrahedron tests
+  double surfaces = 0.0;   // penetrated objects' vertex normals and triangle hash
   double intersect = 0.0;  // stage 2: intersection edges against surfaces
   double border = 0.0;     // stage 3: border point depth and direction
   double propagate = 0.0;  // stage 4: propagation

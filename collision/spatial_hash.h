@@ -19,6 +19,7 @@
 // than any before.
 
 #include <Eigen/Core>
+#include <cmath>
 #include <cstdint>
 #include <span>
 #include <vector>
@@ -37,7 +38,9 @@ class SpatialHash {
   int table_size() const { return static_cast<int>(table_size_); }
 
   Eigen::Vector3i CellOf(const Eigen::Vector3d& p) const {
-    return (p * inverse_cell_size_).array().floor().cast<int>();
+    return {static_cast<int>(std::floor(p.x() * inverse_cell_size_)),
+            static_cast<int>(std::floor(p.y() * inverse_cell_size_)),
+            static_cast<int>(std::floor(p.z() * inverse_cell_size_))};
   }
   // The bucket of a cell. A non-zero `key` (e.g. an object index + 1) mixes
   // in a fourth large prime, so that items of different keys in the same
