@@ -61,6 +61,17 @@ void ExpectSameCollidingPoints(const TestScene& scene, PenetrationOptions option
   EXPECT_EQ(found, expected);
 }
 
+// the same at the default cell size, tiny cells (many distinct cells share
+// buckets) and huge cells (many vertices per cell)
+void ExpectSameCollidingPointsAtThreeCellSizes(const TestScene& scene) {
+  for (double cell : {0.0, 0.002, 0.2}) {
+    SCOPED_TRACE(cell);
+    PenetrationOptions options;
+    options.cell_size = cell;
+    ExpectSameCollidingPoints(scene, options);
+  }
+}
+
 TEST(CollidingPoints, HashMatchesBruteForceOnRandomScenes) {
   std::mt19937 rng(7);
   std::uniform_real_distribution<double> offset(-0.06, 0.06);
@@ -76,14 +87,7 @@ TEST(CollidingPoints, HashMatchesBruteForceOnRandomScenes) {
                 k == 3 && trial % 2);
     }
     SCOPED_TRACE(trial);
-    // default cell size, tiny cells (many distinct cells share buckets) and
-    // huge cells (many vertices per cell)
-    for (double cell : {0.0, 0.002, 0.2}) {
-      SCOPED_TRACE(cell);
-      PenetrationOptions options;
-      options.cell_size = cell;
-      ExpectSameCollidingPoints(scene, options);
-    }
+    ExpectSameCollidingPointsAtThreeCellSizes(scene);
   }
 }
 
@@ -115,12 +119,7 @@ TEST(CollidingPoints, HashMatchesBruteForceInCrowdedScenes) {
       if (x(v, 0) > 0.19) x(v, 0) = -0.03;
     }
     SCOPED_TRACE(trial);
-    for (double cell : {0.0, 0.002, 0.2}) {
-      SCOPED_TRACE(cell);
-      PenetrationOptions options;
-      options.cell_size = cell;
-      ExpectSameCollidingPoints(scene, options);
-    }
+    ExpectSameCollidingPointsAtThreeCellSizes(scene);
   }
 }
 
