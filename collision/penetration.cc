@@ -403,20 +403,10 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
   object_rest_begin_.assign(num_objects, 0);
   object_small_begin_.assign(num_objects, 0);
   object_rest_end_.assign(num_objects, 0);
-  // current vertex normals, object by object in parallel
   penetrated_list_.clear();
   for (int o = 0; o < num_objects; ++o) {
     if (object_penetrated_[o]) penetrated_list_.push_back(o);
   }
-  const int num_penetrated = static_cast<int>(penetrated_list_.size());
-  ParallelFor(
-      num_triangles >= 4096 ? ThreadsFor(options_.num_threads, num_penetrated, 1) : 1, 0,
-      num_penetrated,
-      [&](int i) {
-        const int o = penetrated_list_[i];
-        ComputeVertexNormals(*objects[o].positions, objects[o].mesh->surface(), normals_[o]);
-      },
-      Schedule::kDynamic, 1);
   for (int o : penetrated_list_) {
     const Triangles& surface = objects[o].mesh->surface();
     object_cell_lo_[o] = triangle_hash_.CellOf(object_lo_[o]);
@@ -436,6 +426,40 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
     object_entry_end_[o] = static_cast<int>(triangles_.size());
   }
   triangle_hash_.Build();
+  // current vertex normals, object by object in parallel: of every vertex
+  // where most of the surface is in play, else only of the entries'
+  // vertices (stage 2 reads the normals of the triangles it crosses)
+  if (++normal_round_ == 0) {  // wrapped: stamps would be ambiguous
+    for (auto& stamps : normal_stamp_) std::fill(stamps.begin(), stamps.end(), 0);
+    normal_round_ = 1;
+  }
+  normal_stamp_.resize(num_objects);
+  const int num_penetrated = static_cast<int>(penetrated_list_.size());
+  ParallelFor(
+      num_triangles >= 4096 ? ThreadsFor(options_.num_threads, num_penetrated, 1) : 1, 0,
+      num_penetrated,
+      [&](int i) {
+        const int o = penetrated_list_[i];
+        const TetMesh& mesh = *objects[o].mesh;
+        const Positions& x = *objects[o].positions;
+        const int num_entries = object_entry_end_[o] - object_entry_begin_[o];
+        if (2 * num_entries > mesh.surface().rows()) {
+          ComputeVertexNormals(x, mesh.surface(), normals_[o]);
+          return;
+        }
+        normals_[o].resize(mesh.num_vertices(), 3);
+        std::vector<std::uint32_t>& stamp = normal_stamp_[o];
+        stamp.resize(mesh.num_vertices(), 0);
+        for (int e = object_entry_begin_[o]; e < object_entry_end_[o]; ++e) {
+          for (int k = 0; k < 3; ++k) {
+            const int v = mesh.surface()(triangles_[e].face, k);
+            if (stamp[v] == normal_round_) continue;
+            stamp[v] = normal_round_;
+            normals_[o].row(v) = VertexNormal(mesh, x, v).transpose();
+          }
+        }
+      },
+      Schedule::kDynamic, 1);
   timings_.surfaces += SecondsSince(start);
 }
 

@@ -205,7 +205,9 @@ class PenetrationSolver {
   std::vector<int> vertex_offset_;  // #objects + 1: global vertex index of each object's first
   std::vector<int> vertex_object_;  // #global vertices
   std::vector<const Positions*> positions_;
-  std::vector<Positions> normals_;  // #objects: current vertex normals
+  std::vector<Positions> normals_;  // #objects: current vertex normals (those stage 2 reads)
+  std::vector<std::vector<std::uint32_t>> normal_stamp_;  // #objects x #V: round of the normal
+  std::uint32_t normal_round_ = 0;
   // broad phase: current bounding boxes, and per object the box where its
   // partners (objects whose boxes overlap it and that it may collide with,
   // itself with self-collision) reach into it; empty (lo > hi) if none

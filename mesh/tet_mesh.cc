@@ -194,6 +194,22 @@ void ComputeVertexNormals(const Positions& positions, const Triangles& surface,
   }
 }
 
+Eigen::Vector3d VertexNormal(const TetMesh& mesh, const Positions& positions, int v) {
+  const Triangles& surface = mesh.surface();
+  Eigen::RowVector3d normal = Eigen::RowVector3d::Zero();
+  for (int k = mesh.vertex_triangle_offsets()[v]; k < mesh.vertex_triangle_offsets()[v + 1]; ++k) {
+    const int f = mesh.vertex_triangles()[k];
+    Eigen::Vector3d a = positions.row(surface(f, 0));
+    Eigen::Vector3d b = positions.row(surface(f, 1));
+    Eigen::Vector3d c = positions.row(surface(f, 2));
+    Eigen::RowVector3d n = (b - a).cross(c - a).transpose();
+    normal += n;
+  }
+  double length = normal.norm();
+  if (length > 0.0) normal /= length;
+  return normal.transpose();
+}
+
 TetMesh TetMesh::Build(RawMesh raw, const TetMeshOptions& options) {
   TetMesh mesh;
   CheckAndCompact(raw, options, mesh.warnings_);
@@ -380,6 +396,21 @@ TetMesh TetMesh::Build(RawMesh raw, const TetMeshOptions& options) {
     std::vector<int> fill(mesh.vertex_tet_offsets_.begin(), mesh.vertex_tet_offsets_.end() - 1);
     for (int t = 0; t < num_tets; ++t) {
       for (int i = 0; i < 4; ++i) mesh.vertex_tets_[fill[mesh.tets_(t, i)]++] = t;
+    }
+  }
+
+  mesh.vertex_triangle_offsets_.assign(num_vertices + 1, 0);
+  for (int f = 0; f < mesh.surface_.rows(); ++f) {
+    for (int i = 0; i < 3; ++i) ++mesh.vertex_triangle_offsets_[mesh.surface_(f, i) + 1];
+  }
+  std::partial_sum(mesh.vertex_triangle_offsets_.begin(), mesh.vertex_triangle_offsets_.end(),
+                   mesh.vertex_triangle_offsets_.begin());
+  mesh.vertex_triangles_.resize(3 * static_cast<size_t>(mesh.surface_.rows()));
+  {
+    std::vector<int> fill(mesh.vertex_triangle_offsets_.begin(),
+                          mesh.vertex_triangle_offsets_.end() - 1);
+    for (int f = 0; f < mesh.surface_.rows(); ++f) {
+      for (int i = 0; i < 3; ++i) mesh.vertex_triangles_[fill[mesh.surface_(f, i)]++] = f;
     }
   }
 

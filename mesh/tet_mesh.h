@@ -91,6 +91,12 @@ class TetMesh {
   // Tetrahedra incident to each vertex, same compressed layout.
   const std::vector<int>& vertex_tet_offsets() const { return vertex_tet_offsets_; }  // #V+1
   const std::vector<int>& vertex_tets() const { return vertex_tets_; }                // 4#T
+  // Surface triangles incident to each vertex, same layout, ascending
+  // (empty for interior vertices).
+  const std::vector<int>& vertex_triangle_offsets() const {
+    return vertex_triangle_offsets_;
+  }                                                                               // #V+1
+  const std::vector<int>& vertex_triangles() const { return vertex_triangles_; }  // 3#F
 
   // Unit outward normals of surface vertices (area-weighted average of the
   // incident surface triangles' normals); zero rows for interior vertices.
@@ -123,6 +129,8 @@ class TetMesh {
   std::vector<int> adjacency_;
   std::vector<int> vertex_tet_offsets_;
   std::vector<int> vertex_tets_;
+  std::vector<int> vertex_triangle_offsets_;
+  std::vector<int> vertex_triangles_;
   Positions vertex_normals_;
   Eigen::VectorXd rest_volumes_;
   double total_volume_ = 0.0;
@@ -141,5 +149,10 @@ double SignedTetVolume(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const
 // for vertices on no triangle). Used at rest by TetMesh and every step by the
 // collision solver for deformed bodies.
 void ComputeVertexNormals(const Positions& positions, const Triangles& surface, Positions& normals);
+
+// Row v of ComputeVertexNormals(positions, mesh.surface(), ...), bit for bit
+// (the incident triangles summed in the same, ascending, order), from v's
+// own triangles only: for callers that need a few vertices' normals.
+Eigen::Vector3d VertexNormal(const TetMesh& mesh, const Positions& positions, int v);
 
 }  // namespace tetcosim

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
 
 #include "mesh/error.h"
 #include "mesh/generators.h"
@@ -110,6 +111,34 @@ TEST(TetMesh, SphereNormalsAreRadialAndInteriorNormalsZero) {
       EXPECT_EQ(n.norm(), 0.0);
     }
   }
+}
+
+TEST(TetMesh, VertexNormalIsTheFullComputationsRowBitForBit) {
+  // a deformed capsule: every vertex's normal from its own triangles equals
+  // the one ComputeVertexNormals gets from all of them, exactly; and each
+  // vertex's triangle list holds exactly the triangles that have it
+  TetMesh mesh = TetMesh::Build(MakeShape("capsule:size=0.05,0.1:res=3"));
+  Positions x = mesh.positions();
+  for (Eigen::Index v = 0; v < x.rows(); ++v) {
+    x(v, 0) += 0.3 * std::sin(7.0 * x(v, 2)) * x(v, 1);
+    x(v, 2) *= 1.0 + 0.2 * x(v, 0);
+  }
+  Positions normals;
+  ComputeVertexNormals(x, mesh.surface(), normals);
+  int listed = 0;
+  for (int v = 0; v < mesh.num_vertices(); ++v) {
+    Eigen::Vector3d n = VertexNormal(mesh, x, v);
+    for (int k = 0; k < 3; ++k) ASSERT_EQ(n[k], normals(v, k)) << "vertex " << v;
+    const auto& offsets = mesh.vertex_triangle_offsets();
+    for (int i = offsets[v]; i < offsets[v + 1]; ++i) {
+      EXPECT_TRUE((mesh.surface().row(mesh.vertex_triangles()[i]).array() == v).any());
+      if (i > offsets[v]) {
+        EXPECT_LT(mesh.vertex_triangles()[i - 1], mesh.vertex_triangles()[i]);
+      }
+    }
+    listed += offsets[v + 1] - offsets[v];
+  }
+  EXPECT_EQ(listed, 3 * mesh.surface().rows());
 }
 
 TEST(TetMesh, SurfaceTetOwnsItsTriangle) {
