@@ -43,6 +43,16 @@ bool BoxesOverlap(const Eigen::Vector3d& lo_a, const Eigen::Vector3d& hi_a,
          (lo_b.y() <= hi_a.y()) & (lo_a.z() <= hi_b.z()) & (lo_b.z() <= hi_a.z());
 }
 
+// Bit i of the outcode: p lies beyond side i of the box (x below, x above,
+// y below, ...); 0 inside. A set of points whose outcodes share a bit lies
+// beyond one side, and so does their bounding box.
+std::uint8_t Outcode(const Eigen::Vector3d& p, const Eigen::Vector3d& lo,
+                     const Eigen::Vector3d& hi) {
+  return static_cast<std::uint8_t>((p.x() < lo.x()) | (p.x() > hi.x()) << 1 |
+                                   (p.y() < lo.y()) << 2 | (p.y() > hi.y()) << 3 |
+                                   (p.z() < lo.z()) << 4 | (p.z() > hi.z()) << 5);
+}
+
 bool InBox(const Eigen::Vector3d& p, const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) {
   return (lo.x() <= p.x()) & (p.x() <= hi.x()) & (lo.y() <= p.y()) & (p.y() <= hi.y()) &
          (lo.z() <= p.z()) & (p.z() <= hi.z());
@@ -216,16 +226,16 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
   const int num_threads = std::max(1, options_.num_threads);
   // pass 1: hash the vertices that lie where a partner object can reach
   vertex_cell_.resize(num_vertices);
-  vertex_hashed_.resize(num_vertices);
+  vertex_outcode_.resize(num_vertices);
   hash_.Reset(cell_size_, 0);  // sets the cell size for CellOf; sized below
   ParallelFor(ThreadsFor(num_threads, num_vertices, 4096), 0, num_vertices, [&](int g) {
     const int a = vertex_object_[g];
     Eigen::Vector3d p = Position(g);
-    vertex_hashed_[g] = InBox(p, search_lo_[a], search_hi_[a]);
-    if (vertex_hashed_[g]) vertex_cell_[g] = hash_.CellOf(p);
+    vertex_outcode_[g] = Outcode(p, search_lo_[a], search_hi_[a]);
+    if (vertex_outcode_[g] == 0) vertex_cell_[g] = hash_.CellOf(p);
   });
   int num_hashed = 0;
-  for (int g = 0; g < num_vertices; ++g) num_hashed += vertex_hashed_[g];
+  for (int g = 0; g < num_vertices; ++g) num_hashed += vertex_outcode_[g] == 0;
   // a tetrahedron of an object with few partners looks up each partner's
   // vertices in the buckets of (cell, partner + 1); one of an object with
   // many (a pile of small bodies) looks up all vertices at once, in the
@@ -238,7 +248,7 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
   }
   hash_.Reset(cell_size_, num_hashed * (keyed + unkeyed));
   for (int g = 0; g < num_vertices; ++g) {
-    if (!vertex_hashed_[g]) continue;
+    if (vertex_outcode_[g] != 0) continue;
     if (keyed) hash_.Insert(vertex_cell_[g], g, vertex_object_[g] + 1);
     if (unkeyed) hash_.Insert(vertex_cell_[g], g);
   }
@@ -418,9 +428,10 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
     if (object_small_[o]) object_fully_hashed_[o] = 1;
     for (int f = 0; f < surface.rows(); ++f) {
       if (object_small_[o]) {
-        AddTriangle(objects, o, f, /*grid=*/false);
+        AddTriangle(objects, o, f, /*grid=*/false, TriangleRegion::kAll);
       } else {
-        AddTriangle(objects, o, f, /*grid=*/true, full ? nullptr : &search_lo_[o], &search_hi_[o]);
+        AddTriangle(objects, o, f, /*grid=*/true,
+                    full ? TriangleRegion::kAll : TriangleRegion::kInside);
       }
     }
     object_entry_end_[o] = static_cast<int>(triangles_.size());
@@ -469,24 +480,31 @@ void PenetrationSolver::HashRemainingTriangles(std::span<const CollisionObject> 
   const Triangles& surface = objects[b].mesh->surface();
   object_rest_begin_[b] = static_cast<int>(triangles_.size());
   for (int f = 0; f < surface.rows(); ++f) {
-    AddTriangle(objects, b, f, /*grid=*/true, &search_lo_[b], &search_hi_[b], /*outside=*/true);
+    AddTriangle(objects, b, f, /*grid=*/true, TriangleRegion::kOutside);
   }
   object_rest_end_[b] = static_cast<int>(triangles_.size());
 }
 
 void PenetrationSolver::AddTriangle(std::span<const CollisionObject> objects, int object, int f,
-                                    bool grid, const Eigen::Vector3d* region_lo,
-                                    const Eigen::Vector3d* region_hi, bool outside) {
+                                    bool grid, TriangleRegion region) {
   const Positions& x = *objects[object].positions;
   const Triangles& surface = objects[object].mesh->surface();
+  // in the search box: not with all three corners beyond one of its sides
+  // (the vertices' outcodes, no positions read), and the box overlaps it
+  const std::uint8_t* outcode = vertex_outcode_.data() + vertex_offset_[object];
+  const bool beyond_a_side =
+      (outcode[surface(f, 0)] & outcode[surface(f, 1)] & outcode[surface(f, 2)]) != 0;
+  if (region == TriangleRegion::kInside && beyond_a_side) return;
   TriangleGeometry geometry;
   for (int k = 0; k < 3; ++k) geometry.corner[k] = x.row(surface(f, k)).transpose();
   TriangleEntry entry;
   entry.lo = geometry.corner[0].cwiseMin(geometry.corner[1]).cwiseMin(geometry.corner[2]);
   entry.hi = geometry.corner[0].cwiseMax(geometry.corner[1]).cwiseMax(geometry.corner[2]);
   Inflate(entry.lo, entry.hi);
-  if (region_lo != nullptr && BoxesOverlap(entry.lo, entry.hi, *region_lo, *region_hi) == outside) {
-    return;
+  if (region != TriangleRegion::kAll) {
+    const bool inside =
+        !beyond_a_side && BoxesOverlap(entry.lo, entry.hi, search_lo_[object], search_hi_[object]);
+    if (inside != (region == TriangleRegion::kInside)) return;
   }
   entry.object = object;
   entry.face = f;

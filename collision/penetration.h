@@ -179,12 +179,14 @@ class PenetrationSolver {
   // adds the triangles of object b that HashSurfaces left out (for closest
   // features, which may lie outside the region where objects overlap)
   void HashRemainingTriangles(std::span<const CollisionObject> objects, int b);
-  // adds surface triangle f of an object to the entries, and with grid to
-  // the hash too (else kept in the entry list only: small surfaces); with a
-  // region, only if its box overlaps the region (outside: only if not)
+  // which of an object's surface triangles: all, those in its search box
+  // (where intersection edges can cross them), the others
+  enum class TriangleRegion { kAll, kInside, kOutside };
+  // adds surface triangle f of an object to the entries if it is in the
+  // region, and with grid to the hash too (else kept in the entry list only:
+  // small surfaces)
   void AddTriangle(std::span<const CollisionObject> objects, int object, int f, bool grid,
-                   const Eigen::Vector3d* region_lo = nullptr,
-                   const Eigen::Vector3d* region_hi = nullptr, bool outside = false);
+                   TriangleRegion region);
   void FindCrossings(std::span<const CollisionObject> objects);
   void ComputeBorderPoints(std::span<const CollisionObject> objects);
   void Propagate(std::span<const CollisionObject> objects);
@@ -226,8 +228,9 @@ class PenetrationSolver {
 
   SpatialHash hash_;  // stage 1: vertices
   std::vector<Eigen::Vector3i> vertex_cell_;
-  std::vector<char> vertex_hashed_;   // #global vertices: inside its object's search box
-  std::vector<HashedVertex> hashed_;  // #hashed vertices, in the hash's entry order
+  std::vector<std::uint8_t> vertex_outcode_;  // #global vertices: the sides of its object's
+                                              // search box it lies beyond (0: hashed)
+  std::vector<HashedVertex> hashed_;          // #hashed vertices, in the hash's entry order
   std::vector<std::vector<Hit>> thread_hits_;
   std::vector<Hit> hits_;        // sorted by (vertex, penetrated)
   std::vector<int> hit_offset_;  // #global vertices + 1
