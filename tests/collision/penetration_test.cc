@@ -369,14 +369,8 @@ TEST(ClosestFeature, AcceleratedSearchMatchesBruteForce) {
   (void)torus;
 }
 
-TEST(Determinism, SameResultsWithOneAndTwoThreads) {
-  TestScene scene;
-  std::mt19937 rng(11);
-  std::uniform_real_distribution<double> offset(-0.05, 0.05);
-  for (int k = 0; k < 12; ++k) {
-    scene.Add(TetMesh::Build(MakeShape("sphere:size=0.04:res=1")),
-              Pose({offset(rng), offset(rng), offset(rng)}, offset(rng) * 30, {1, 2, 3}));
-  }
+// the solver's results with 1 and 2 threads: the same, bit for bit
+void ExpectSameResultsWithOneAndTwoThreads(const TestScene& scene, size_t min_results) {
   for (DepthMethod method : {DepthMethod::kConsistent, DepthMethod::kClosest}) {
     std::vector<PenetrationResult> runs[2];
     for (int threads : {1, 2}) {
@@ -387,7 +381,7 @@ TEST(Determinism, SameResultsWithOneAndTwoThreads) {
       runs[threads - 1] = solver.Solve(scene.objects);
     }
     ASSERT_EQ(runs[0].size(), runs[1].size());
-    ASSERT_GT(runs[0].size(), 100u);
+    ASSERT_GT(runs[0].size(), min_results);
     for (size_t i = 0; i < runs[0].size(); ++i) {
       const auto& x = runs[0][i];
       const auto& y = runs[1][i];
@@ -398,6 +392,26 @@ TEST(Determinism, SameResultsWithOneAndTwoThreads) {
       EXPECT_EQ(x.source, y.source);
     }
   }
+}
+
+TEST(Determinism, SameResultsWithOneAndTwoThreads) {
+  // a pile of small spheres (each with many partners)
+  TestScene spheres;
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> offset(-0.05, 0.05);
+  for (int k = 0; k < 12; ++k) {
+    spheres.Add(TetMesh::Build(MakeShape("sphere:size=0.04:res=1")),
+                Pose({offset(rng), offset(rng), offset(rng)}, offset(rng) * 30, {1, 2, 3}));
+  }
+  ExpectSameResultsWithOneAndTwoThreads(spheres, 100);
+  // two wide slabs two vertex layers into each other: large enough that
+  // every stage (the vertex pass, border points, each propagation layer)
+  // runs on both threads
+  TestScene slabs;
+  const char* slab = "box:size=0.1,0.1,0.02:res=32,32,4";
+  slabs.Add(TetMesh::Build(MakeShape(slab)), Pose({0, 0, 0}));
+  slabs.Add(TetMesh::Build(MakeShape(slab)), Pose({0.001, 0.002, 0.0215}, 0.01, {1, 2, 3}));
+  ExpectSameResultsWithOneAndTwoThreads(slabs, 3500);
 }
 
 }  // namespace
