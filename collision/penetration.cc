@@ -3,7 +3,6 @@
 #include <omp.h>
 
 #include <algorithm>
-#include <atomic>
 #include <cassert>
 #include <chrono>
 #include <cmath>
@@ -53,6 +52,8 @@ std::uint8_t Outcode(const Eigen::Vector3d& p, const Eigen::Vector3d& lo,
                                    (p.z() < lo.z()) << 4 | (p.z() > hi.z()) << 5);
 }
 
+// Outcode(p, lo, hi) == 0, without the shifts (the stage-1 candidate loops
+// run it per candidate; measured 14% slower through Outcode on the spheres)
 bool InBox(const Eigen::Vector3d& p, const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) {
   return (lo.x() <= p.x()) & (p.x() <= hi.x()) & (lo.y() <= p.y()) & (p.y() <= hi.y()) &
          (lo.z() <= p.z()) & (p.z() <= hi.z());
@@ -516,13 +517,13 @@ void PenetrationSolver::AddTriangle(std::span<const CollisionObject> objects, in
   const int index = static_cast<int>(triangles_.size());
   triangles_.push_back(entry);
   triangle_geometry_.push_back(geometry);
-  if (!grid) {  // a small object's: its box by coordinate too
+  if (!grid) {  // a small object's: its box by coordinate too, not hashed
     for (int k = 0; k < 3; ++k) {
       small_lo_[k].push_back(entry.lo[k]);
       small_hi_[k].push_back(entry.hi[k]);
     }
+    return;
   }
-  if (!grid) return;
   if (CellCount(geometry.cell_lo, geometry.cell_hi) > kMaxTriangleCells) {
     large_triangles_.push_back(index);
     return;
@@ -949,7 +950,7 @@ void PenetrationSolver::ComputeClosest(std::span<const CollisionObject> objects,
         source_[h] = source;
         layer_[h] = std::numeric_limits<int>::max();
       },
-      Schedule::kDynamic, 64);
+      Schedule::kDynamic, 16);
   timings_.closest += SecondsSince(start);
 }
 

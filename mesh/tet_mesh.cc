@@ -177,15 +177,24 @@ double SignedTetVolume(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const
   return (b - a).cross(c - a).dot(d - a) / 6.0;
 }
 
+namespace {
+
+// (b-a) x (c-a) of surface triangle f: |n| is twice the area, so summing
+// these at a vertex weights its triangles by area for free
+Eigen::RowVector3d AreaNormal(const Positions& positions, const Triangles& surface, int f) {
+  Eigen::Vector3d a = positions.row(surface(f, 0));
+  Eigen::Vector3d b = positions.row(surface(f, 1));
+  Eigen::Vector3d c = positions.row(surface(f, 2));
+  return (b - a).cross(c - a).transpose();
+}
+
+}  // namespace
+
 void ComputeVertexNormals(const Positions& positions, const Triangles& surface,
                           Positions& normals) {
   normals.setZero(positions.rows(), 3);
   for (int f = 0; f < surface.rows(); ++f) {
-    Eigen::Vector3d a = positions.row(surface(f, 0));
-    Eigen::Vector3d b = positions.row(surface(f, 1));
-    Eigen::Vector3d c = positions.row(surface(f, 2));
-    // |(b-a) x (c-a)| is twice the area: area weighting comes for free
-    Eigen::RowVector3d n = (b - a).cross(c - a).transpose();
+    const Eigen::RowVector3d n = AreaNormal(positions, surface, f);
     for (int i = 0; i < 3; ++i) normals.row(surface(f, i)) += n;
   }
   for (int v = 0; v < normals.rows(); ++v) {
@@ -198,12 +207,7 @@ Eigen::Vector3d VertexNormal(const TetMesh& mesh, const Positions& positions, in
   const Triangles& surface = mesh.surface();
   Eigen::RowVector3d normal = Eigen::RowVector3d::Zero();
   for (int k = mesh.vertex_triangle_offsets()[v]; k < mesh.vertex_triangle_offsets()[v + 1]; ++k) {
-    const int f = mesh.vertex_triangles()[k];
-    Eigen::Vector3d a = positions.row(surface(f, 0));
-    Eigen::Vector3d b = positions.row(surface(f, 1));
-    Eigen::Vector3d c = positions.row(surface(f, 2));
-    Eigen::RowVector3d n = (b - a).cross(c - a).transpose();
-    normal += n;
+    normal += AreaNormal(positions, surface, mesh.vertex_triangles()[k]);
   }
   double length = normal.norm();
   if (length > 0.0) normal /= length;
