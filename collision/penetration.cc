@@ -9,6 +9,7 @@
 #include <limits>
 
 #include "collision/geometry.h"
+#include "mesh/group_by_key.h"
 #include "mesh/parallel_for.h"
 
 namespace tetcosim {
@@ -201,16 +202,19 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
   }
   // per object its partners, with the overlap of the two boxes, in the
   // order found (deterministic)
-  partner_offset_.assign(num_objects + 1, 0);
-  for (const auto& pair : pairs_) ++partner_offset_[pair[0] + 1];
-  for (int o = 0; o < num_objects; ++o) partner_offset_[o + 1] += partner_offset_[o];
+  GroupByKey(
+      num_objects,
+      [&](auto emit) {
+        for (int i = 0; i < static_cast<int>(pairs_.size()); ++i) emit(pairs_[i][0], i);
+      },
+      partner_offset_, partner_pair_);
   partners_.resize(pairs_.size());
-  partner_fill_.assign(partner_offset_.begin(), partner_offset_.end() - 1);
   const double inf = std::numeric_limits<double>::infinity();
   search_lo_.assign(num_objects, Eigen::Vector3d::Constant(inf));
   search_hi_.assign(num_objects, Eigen::Vector3d::Constant(-inf));
-  for (const auto& [b, a] : pairs_) {
-    Partner& partner = partners_[partner_fill_[b]++];
+  for (size_t k = 0; k < partners_.size(); ++k) {
+    const auto [b, a] = pairs_[partner_pair_[k]];
+    Partner& partner = partners_[k];
     partner.object = a;
     partner.lo = object_lo_[a].cwiseMax(object_lo_[b]);
     partner.hi = object_hi_[a].cwiseMin(object_hi_[b]);

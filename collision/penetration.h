@@ -222,7 +222,7 @@ class PenetrationSolver {
     int object;
   };
   std::vector<int> partner_offset_;  // #objects + 1
-  std::vector<int> partner_fill_;    // #objects (scratch)
+  std::vector<int> partner_pair_;    // per partner entry: its index in pairs_
   std::vector<Partner> partners_;    // per object, its partners
   std::vector<int> tet_offset_;      // #objects + 1: global tet index
 

@@ -6,6 +6,7 @@
 #include <cstdint>
 
 #include "deformable/corotational.h"
+#include "mesh/group_by_key.h"
 
 namespace tetcosim {
 
@@ -112,12 +113,14 @@ std::shared_ptr<const FemModel> FemModel::Build(std::shared_ptr<const TetMesh> m
     num_colors = std::max(num_colors, c + 1);
   }
   // the tets sorted by colour (mesh order within a colour)
-  std::vector<int> color_offsets(num_colors + 1, 0);  // #colors + 1
-  for (int t = 0; t < num_tets; ++t) ++color_offsets[color[t] + 1];
-  for (int c = 0; c < num_colors; ++c) color_offsets[c + 1] += color_offsets[c];
-  std::vector<int> colored_tets(num_tets);
-  std::vector<int> fill(color_offsets.begin(), color_offsets.end() - 1);
-  for (int t = 0; t < num_tets; ++t) colored_tets[fill[color[t]]++] = t;
+  std::vector<int> color_offsets;  // #colors + 1
+  std::vector<int> colored_tets;   // #T
+  GroupByKey(
+      num_colors,
+      [&](auto emit) {
+        for (int t = 0; t < num_tets; ++t) emit(color[t], t);
+      },
+      color_offsets, colored_tets);
 
   // batches of four, in mesh order and within each colour
   auto append_batches = [](const int* tets, int count, std::vector<ElementBatch>& batches) {

@@ -8,6 +8,7 @@
 #include <sstream>
 
 #include "mesh/error.h"
+#include "mesh/group_by_key.h"
 
 namespace tetcosim {
 namespace {
@@ -368,55 +369,37 @@ TetMesh TetMesh::Build(RawMesh raw, const TetMeshOptions& options) {
   }
   mesh.average_edge_length_ = edge_sum / static_cast<double>(edges.size());
 
-  // adjacency in compressed rows (edges are sorted, so rows come out ascending
-  // after a counting pass)
-  mesh.adjacency_offsets_.assign(num_vertices + 1, 0);
-  for (const auto& e : edges) {
-    ++mesh.adjacency_offsets_[e[0] + 1];
-    ++mesh.adjacency_offsets_[e[1] + 1];
+  // adjacency in compressed rows, each row sorted
+  GroupByKey(
+      num_vertices,
+      [&](auto emit) {
+        for (const auto& e : edges) {
+          emit(e[0], e[1]);
+          emit(e[1], e[0]);
+        }
+      },
+      mesh.adjacency_offsets_, mesh.adjacency_);
+  for (int v = 0; v < num_vertices; ++v) {
+    std::sort(mesh.adjacency_.begin() + mesh.adjacency_offsets_[v],
+              mesh.adjacency_.begin() + mesh.adjacency_offsets_[v + 1]);
   }
-  std::partial_sum(mesh.adjacency_offsets_.begin(), mesh.adjacency_offsets_.end(),
-                   mesh.adjacency_offsets_.begin());
-  mesh.adjacency_.resize(2 * edges.size());
-  {
-    std::vector<int> fill(mesh.adjacency_offsets_.begin(), mesh.adjacency_offsets_.end() - 1);
-    for (const auto& e : edges) {
-      mesh.adjacency_[fill[e[0]]++] = e[1];
-      mesh.adjacency_[fill[e[1]]++] = e[0];
-    }
-    for (int v = 0; v < num_vertices; ++v) {
-      std::sort(mesh.adjacency_.begin() + mesh.adjacency_offsets_[v],
-                mesh.adjacency_.begin() + mesh.adjacency_offsets_[v + 1]);
-    }
-  }
-  mesh.vertex_tet_offsets_.assign(num_vertices + 1, 0);
-  for (int t = 0; t < num_tets; ++t) {
-    for (int i = 0; i < 4; ++i) ++mesh.vertex_tet_offsets_[mesh.tets_(t, i) + 1];
-  }
-  std::partial_sum(mesh.vertex_tet_offsets_.begin(), mesh.vertex_tet_offsets_.end(),
-                   mesh.vertex_tet_offsets_.begin());
-  mesh.vertex_tets_.resize(4 * static_cast<size_t>(num_tets));
-  {
-    std::vector<int> fill(mesh.vertex_tet_offsets_.begin(), mesh.vertex_tet_offsets_.end() - 1);
-    for (int t = 0; t < num_tets; ++t) {
-      for (int i = 0; i < 4; ++i) mesh.vertex_tets_[fill[mesh.tets_(t, i)]++] = t;
-    }
-  }
-
-  mesh.vertex_triangle_offsets_.assign(num_vertices + 1, 0);
-  for (int f = 0; f < mesh.surface_.rows(); ++f) {
-    for (int i = 0; i < 3; ++i) ++mesh.vertex_triangle_offsets_[mesh.surface_(f, i) + 1];
-  }
-  std::partial_sum(mesh.vertex_triangle_offsets_.begin(), mesh.vertex_triangle_offsets_.end(),
-                   mesh.vertex_triangle_offsets_.begin());
-  mesh.vertex_triangles_.resize(3 * static_cast<size_t>(mesh.surface_.rows()));
-  {
-    std::vector<int> fill(mesh.vertex_triangle_offsets_.begin(),
-                          mesh.vertex_triangle_offsets_.end() - 1);
-    for (int f = 0; f < mesh.surface_.rows(); ++f) {
-      for (int i = 0; i < 3; ++i) mesh.vertex_triangles_[fill[mesh.surface_(f, i)]++] = f;
-    }
-  }
+  // tetrahedra and surface triangles at each vertex, ascending
+  GroupByKey(
+      num_vertices,
+      [&](auto emit) {
+        for (int t = 0; t < num_tets; ++t) {
+          for (int i = 0; i < 4; ++i) emit(mesh.tets_(t, i), t);
+        }
+      },
+      mesh.vertex_tet_offsets_, mesh.vertex_tets_);
+  GroupByKey(
+      num_vertices,
+      [&](auto emit) {
+        for (int f = 0; f < mesh.surface_.rows(); ++f) {
+          for (int i = 0; i < 3; ++i) emit(mesh.surface_(f, i), f);
+        }
+      },
+      mesh.vertex_triangle_offsets_, mesh.vertex_triangles_);
 
   ComputeVertexNormals(mesh.positions_, mesh.surface_, mesh.vertex_normals_);
   mesh.rest_volumes_.resize(num_tets);
