@@ -14,21 +14,48 @@ namespace tetcosim {
 // tetrahedra is then inside at least one of them despite rounding.
 constexpr double kBarycentricTolerance = 1e-12;
 
-// Barycentric coordinates of p in the tetrahedron (a, b, c, d):
-// p = l0 a + l1 b + l2 c + l3 d with l0 + l1 + l2 + l3 = 1. Returns false for
-// a degenerate tetrahedron (zero volume).
+// Barycentric coordinates in one tetrahedron (a, b, c, d), for many points:
+// p = l0 a + l1 b + l2 c + l3 d with l0 + l1 + l2 + l3 = 1. What depends on
+// the tetrahedron alone is computed once.
+class TetCoordinates {
+ public:
+  TetCoordinates() = default;  // unset: assign before use
+  TetCoordinates(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c,
+                 const Eigen::Vector3d& d)
+      : a_(a), e1_(b - a), e2_(c - a), e3_(d - a), e23_(e2_.cross(e3_)) {
+    const double det = e1_.dot(e23_);
+    degenerate_ = det == 0.0 || !std::isfinite(det);
+    inverse_det_ = degenerate_ ? 0.0 : 1.0 / det;
+  }
+  // zero volume (or not finite): no coordinates
+  bool degenerate() const { return degenerate_; }
+
+  // The coordinates of p (the tetrahedron must not be degenerate):
+  // [b-a c-a d-a] (l1 l2 l3)^T = p - a by Cramer's rule.
+  Eigen::Vector4d operator()(const Eigen::Vector3d& p) const {
+    const Eigen::Vector3d r = p - a_;
+    Eigen::Vector4d l;
+    l[1] = r.dot(e23_) * inverse_det_;
+    l[2] = e1_.dot(r.cross(e3_)) * inverse_det_;
+    l[3] = e1_.dot(e2_.cross(r)) * inverse_det_;
+    l[0] = 1.0 - l[1] - l[2] - l[3];
+    return l;
+  }
+
+ private:
+  Eigen::Vector3d a_, e1_, e2_, e3_, e23_;
+  double inverse_det_;
+  bool degenerate_;
+};
+
+// Barycentric coordinates of p in the tetrahedron (a, b, c, d). Returns
+// false for a degenerate tetrahedron (zero volume).
 inline bool TetBarycentric(const Eigen::Vector3d& a, const Eigen::Vector3d& b,
                            const Eigen::Vector3d& c, const Eigen::Vector3d& d,
                            const Eigen::Vector3d& p, Eigen::Vector4d& l) {
-  // solve [b-a c-a d-a] (l1 l2 l3)^T = p - a by Cramer's rule
-  Eigen::Vector3d e1 = b - a, e2 = c - a, e3 = d - a, r = p - a;
-  double det = e1.dot(e2.cross(e3));
-  if (det == 0.0 || !std::isfinite(det)) return false;
-  double inv = 1.0 / det;
-  l[1] = r.dot(e2.cross(e3)) * inv;
-  l[2] = e1.dot(r.cross(e3)) * inv;
-  l[3] = e1.dot(e2.cross(r)) * inv;
-  l[0] = 1.0 - l[1] - l[2] - l[3];
+  const TetCoordinates coordinates(a, b, c, d);
+  if (coordinates.degenerate()) return false;
+  l = coordinates(p);
   return true;
 }
 

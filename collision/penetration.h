@@ -140,11 +140,15 @@ class PenetrationSolver {
                                           : tet < o.tet;
     }
   };
-  // a vertex in the stage-1 hash (entries in bucket order)
-  struct HashedVertex {
-    Eigen::Vector3d position;
-    int vertex;  // global vertex index
-    int object;  // its object
+  // the vertices in the stage-1 hash, in its entry (bucket) order, by
+  // coordinate so that a tetrahedron tests four candidates at once against
+  // its box; each coordinate array has kHashedPadding more entries (NaN),
+  // so that a 4-wide read from any entry stays inside it
+  static constexpr int kHashedPadding = 3;
+  struct HashedVertices {
+    std::vector<double> x, y, z;  // position
+    std::vector<int> vertex;      // global vertex index
+    std::vector<int> object;      // its object
   };
   // a crossing of an intersection edge with B's surface
   struct Crossing {
@@ -230,7 +234,7 @@ class PenetrationSolver {
   std::vector<Eigen::Vector3i> vertex_cell_;
   std::vector<std::uint8_t> vertex_outcode_;  // #global vertices: the sides of its object's
                                               // search box it lies beyond (0: hashed)
-  std::vector<HashedVertex> hashed_;          // #hashed vertices, in the hash's entry order
+  HashedVertices hashed_;
   std::vector<std::vector<Hit>> thread_hits_;
   std::vector<Hit> hits_;        // sorted by (vertex, penetrated)
   std::vector<int> hit_offset_;  // #global vertices + 1
