@@ -228,7 +228,7 @@ class PenetrationSolver {
   std::vector<int> partner_offset_;  // #objects + 1
   std::vector<int> partner_pair_;    // per partner entry: its index in pairs_
   std::vector<Partner> partners_;    // per object, its partners
-  std::vector<int> tet_offset_;      // #objects + 1: global tet index
+  std::vector<int> chunk_offset_;    // #objects + 1: global index of stage 1's tet chunks
 
   SpatialHash hash_;  // stage 1: vertices
   std::vector<Eigen::Vector3i> vertex_cell_;
@@ -236,8 +236,10 @@ class PenetrationSolver {
                                               // search box it lies beyond (0: hashed)
   HashedVertices hashed_;
   std::vector<std::vector<Hit>> thread_hits_;
-  std::vector<Hit> hits_;        // sorted by (vertex, penetrated)
-  std::vector<int> hit_offset_;  // #global vertices + 1
+  std::vector<HashedVertices> thread_gathered_;  // per thread: a tet chunk's candidates
+                                                 // (vertex: the entry in hashed_)
+  std::vector<Hit> hits_;                        // sorted by (vertex, penetrated)
+  std::vector<int> hit_offset_;                  // #global vertices + 1
 
   SpatialHash triangle_hash_;             // stage 2 and closest features: surface triangles
   std::vector<TriangleEntry> triangles_;  // the entries, by object

@@ -4,8 +4,10 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdint>
 #include <numeric>
 #include <sstream>
+#include <utility>
 
 #include "mesh/error.h"
 #include "mesh/group_by_key.h"
@@ -169,6 +171,73 @@ bool SameCyclicOrder(const int* a, const std::array<int, 3>& key) {
   // rotate a so that its smallest comes first, then compare with key
   int s = static_cast<int>(std::min_element(a, a + 3) - a);
   return a[(s + 1) % 3] == key[1];
+}
+
+// The bits of v (below 2^21) spread to every third bit.
+std::uint64_t SpreadBits(std::uint64_t v) {
+  v &= 0x1fffff;
+  v = (v | v << 32) & 0x1f00000000ffffull;
+  v = (v | v << 16) & 0x1f0000ff0000ffull;
+  v = (v | v << 8) & 0x100f00f00f00f00full;
+  v = (v | v << 4) & 0x10c30c30c30c30c3ull;
+  v = (v | v << 2) & 0x1249249249249249ull;
+  return v;
+}
+
+// How compact runs of kSpatialRun consecutive tetrahedra are in `order`:
+// the sum over runs of the volume of the bounding box of the run's
+// tetrahedra grown by `margin` along each axis (a spatial hash of cell size
+// `margin` looks up about that volume for the run).
+constexpr int kSpatialRun = 16;
+double RunCost(const Positions& positions, const Tets& tets, const std::vector<int>& order,
+               double margin) {
+  double cost = 0.0;
+  for (size_t begin = 0; begin < order.size(); begin += kSpatialRun) {
+    const size_t end = std::min(order.size(), begin + kSpatialRun);
+    Eigen::Vector3d lo = positions.row(tets(order[begin], 0)).transpose(), hi = lo;
+    for (size_t i = begin; i < end; ++i) {
+      for (int k = 0; k < 4; ++k) {
+        lo = lo.cwiseMin(positions.row(tets(order[i], k)).transpose());
+        hi = hi.cwiseMax(positions.row(tets(order[i], k)).transpose());
+      }
+    }
+    cost += (hi - lo + Eigen::Vector3d::Constant(margin)).prod();
+  }
+  return cost;
+}
+
+// The file's order if its runs of tetrahedra are compact (a generator's,
+// cell by cell), else the tetrahedra sorted by the Morton code of their
+// centroids, quantised to 2^21 steps along the largest side of the box
+// [lo, hi] (a mesher's output is in no spatial order); ties by index.
+std::vector<int> SpatialOrder(const Positions& positions, const Tets& tets,
+                              const Eigen::Vector3d& lo, const Eigen::Vector3d& hi,
+                              double edge_length) {
+  const int num_tets = static_cast<int>(tets.rows());
+  Eigen::Matrix<double, Eigen::Dynamic, 3> centroids(num_tets, 3);
+  for (int t = 0; t < num_tets; ++t) {
+    centroids.row(t) = 0.25 * (positions.row(tets(t, 0)) + positions.row(tets(t, 1)) +
+                               positions.row(tets(t, 2)) + positions.row(tets(t, 3)));
+  }
+  const double extent = (hi - lo).maxCoeff();
+  const double scale = extent > 0.0 ? (double{1 << 21} - 1.0) / extent : 0.0;
+  std::vector<std::pair<std::uint64_t, int>> keyed(num_tets);
+  for (int t = 0; t < num_tets; ++t) {
+    const Eigen::Vector3d q = ((centroids.row(t).transpose() - lo) * scale).cwiseMax(0.0);
+    std::uint64_t code = 0;
+    for (int k = 0; k < 3; ++k) code |= SpreadBits(static_cast<std::uint64_t>(q[k])) << k;
+    keyed[t] = {code, t};
+  }
+  std::sort(keyed.begin(), keyed.end());
+  std::vector<int> morton(num_tets), file(num_tets);
+  for (int t = 0; t < num_tets; ++t) {
+    morton[t] = keyed[t].second;
+    file[t] = t;
+  }
+  return RunCost(positions, tets, file, edge_length) <=
+                 RunCost(positions, tets, morton, edge_length)
+             ? file
+             : morton;
 }
 
 }  // namespace
@@ -412,6 +481,8 @@ TetMesh TetMesh::Build(RawMesh raw, const TetMeshOptions& options) {
   mesh.total_volume_ = mesh.rest_volumes_.sum();
   mesh.bbox_min_ = mesh.positions_.colwise().minCoeff().transpose();
   mesh.bbox_max_ = mesh.positions_.colwise().maxCoeff().transpose();
+  mesh.spatial_tet_order_ = SpatialOrder(mesh.positions_, mesh.tets_, mesh.bbox_min_,
+                                         mesh.bbox_max_, mesh.average_edge_length_);
   return mesh;
 }
 

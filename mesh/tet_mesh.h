@@ -98,6 +98,13 @@ class TetMesh {
   }                                                                               // #V+1
   const std::vector<int>& vertex_triangles() const { return vertex_triangles_; }  // 3#F
 
+  // A permutation of 0..#T-1 in which runs of 16 consecutive tetrahedra
+  // lie close together at rest: the file's order if it already is so (a
+  // generator's, cell by cell), else a Z-order (Morton) curve through the
+  // rest centroids (a mesher's output is in no spatial order). The
+  // collision solver takes tetrahedra in this order.
+  const std::vector<int>& spatial_tet_order() const { return spatial_tet_order_; }  // #T
+
   // Unit outward normals of surface vertices (area-weighted average of the
   // incident surface triangles' normals); zero rows for interior vertices.
   const Positions& vertex_normals() const { return vertex_normals_; }  // #V x 3
@@ -131,6 +138,7 @@ class TetMesh {
   std::vector<int> vertex_tets_;
   std::vector<int> vertex_triangle_offsets_;
   std::vector<int> vertex_triangles_;
+  std::vector<int> spatial_tet_order_;
   Positions vertex_normals_;
   Eigen::VectorXd rest_volumes_;
   double total_volume_ = 0.0;

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <random>
 
 #include "mesh/error.h"
 #include "mesh/generators.h"
@@ -139,6 +140,53 @@ TEST(TetMesh, VertexNormalIsTheFullComputationsRowBitForBit) {
     listed += offsets[v + 1] - offsets[v];
   }
   EXPECT_EQ(listed, 3 * mesh.surface().rows());
+}
+
+// the mean volume of the bounding boxes of runs of 16 consecutive tets
+double MeanRunBoxVolume(const TetMesh& mesh, const std::vector<int>& order) {
+  double sum = 0.0;
+  int runs = 0;
+  for (size_t begin = 0; begin < order.size(); begin += 16, ++runs) {
+    Eigen::Vector3d lo = Eigen::Vector3d::Constant(1e300), hi = -lo;
+    for (size_t i = begin; i < std::min(order.size(), begin + 16); ++i) {
+      for (int k = 0; k < 4; ++k) {
+        lo = lo.cwiseMin(mesh.positions().row(mesh.tets()(order[i], k)).transpose());
+        hi = hi.cwiseMax(mesh.positions().row(mesh.tets()(order[i], k)).transpose());
+      }
+    }
+    sum += (hi - lo).prod();
+  }
+  return sum / runs;
+}
+
+TEST(TetMesh, SpatialTetOrderIsAPermutationWithCompactRuns) {
+  RawMesh raw = MakeShape("box:size=0.1,0.1,0.1:res=8,8,8");
+  const TetMesh generated = TetMesh::Build(raw);
+  // the same tets in a random order (as a mesher writes them)
+  std::vector<int> shuffle(raw.tets.rows());
+  for (size_t t = 0; t < shuffle.size(); ++t) shuffle[t] = static_cast<int>(t);
+  std::mt19937 rng(3);
+  std::shuffle(shuffle.begin(), shuffle.end(), rng);
+  RawMesh shuffled_raw = raw;
+  for (size_t t = 0; t < shuffle.size(); ++t) shuffled_raw.tets.row(t) = raw.tets.row(shuffle[t]);
+  const TetMesh shuffled = TetMesh::Build(shuffled_raw);
+  for (const TetMesh* mesh : {&generated, &shuffled}) {
+    std::vector<int> sorted = mesh->spatial_tet_order();
+    std::sort(sorted.begin(), sorted.end());
+    for (int t = 0; t < mesh->num_tets(); ++t) ASSERT_EQ(sorted[t], t);
+  }
+  std::vector<int> file_order(shuffle.size());
+  for (size_t t = 0; t < file_order.size(); ++t) file_order[t] = static_cast<int>(t);
+  // the shuffled file's runs span most of the box; the spatial order's are
+  // about as compact as the generator's own cell-by-cell order
+  const double cube = std::pow(0.2, 3);
+  EXPECT_GT(MeanRunBoxVolume(shuffled, file_order), 0.3 * cube);
+  const double spatial = MeanRunBoxVolume(shuffled, shuffled.spatial_tet_order());
+  EXPECT_LT(spatial, 0.02 * cube);
+  EXPECT_LT(spatial, 2.0 * MeanRunBoxVolume(generated, file_order));
+  // the generator's order is kept when it is compact enough
+  EXPECT_LE(MeanRunBoxVolume(generated, generated.spatial_tet_order()),
+            MeanRunBoxVolume(generated, file_order) * (1.0 + 1e-12));
 }
 
 TEST(TetMesh, SurfaceTetOwnsItsTriangle) {
