@@ -87,6 +87,24 @@ class Box4 {
         hi_y_(Double4{} + hi.y()),
         hi_z_(Double4{} + hi.z()) {}
 
+  // visit(i), in increasing order, for every box i in [begin, end) of the
+  // boxes [lo[k][i], hi[k][i]] (k: the axis) that overlaps this one,
+  // four at a time (reading up to three boxes beyond end)
+  template <typename Visit>
+  void ForEachOverlapping(const std::vector<double> (&lo)[3], const std::vector<double> (&hi)[3],
+                          int begin, int end, Visit&& visit) const {
+    constexpr Mask4 kLane = {0, 1, 2, 3};
+    for (int i = begin; i < end; i += 4) {
+      const Mask4 overlap = (Load4(&lo[0][i]) <= hi_x_) & (lo_x_ <= Load4(&hi[0][i])) &
+                            (Load4(&lo[1][i]) <= hi_y_) & (lo_y_ <= Load4(&hi[1][i])) &
+                            (Load4(&lo[2][i]) <= hi_z_) & (lo_z_ <= Load4(&hi[2][i])) &
+                            (kLane + i < end);
+      for (unsigned bits = Bits(overlap); bits != 0; bits &= bits - 1) {
+        visit(i + std::countr_zero(bits));
+      }
+    }
+  }
+
   // visit(e), in increasing order, for every entry e in [begin, end) of
   // points whose position lies in the box (lo <= p <= hi in every
   // coordinate; NaN is outside), four entries at a time (reading up to
@@ -98,13 +116,18 @@ class Box4 {
       const Double4 x = Load4(&points.x[e]), y = Load4(&points.y[e]), z = Load4(&points.z[e]);
       const Mask4 inside = (x >= lo_x_) & (x <= hi_x_) & (y >= lo_y_) & (y <= hi_y_) &
                            (z >= lo_z_) & (z <= hi_z_) & (kLane + e < end);
-      unsigned bits = static_cast<unsigned>((inside[0] & 1) | (inside[1] & 2) | (inside[2] & 4) |
-                                            (inside[3] & 8));
-      for (; bits != 0; bits &= bits - 1) visit(e + std::countr_zero(bits));
+      for (unsigned bits = Bits(inside); bits != 0; bits &= bits - 1) {
+        visit(e + std::countr_zero(bits));
+      }
     }
   }
 
  private:
+  // bit i set: lane i of the mask is true
+  static unsigned Bits(const Mask4& mask) {
+    return static_cast<unsigned>((mask[0] & 1) | (mask[1] & 2) | (mask[2] & 4) | (mask[3] & 8));
+  }
+
   Double4 lo_x_, lo_y_, lo_z_, hi_x_, hi_y_, hi_z_;
 };
 
@@ -598,6 +621,12 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
     }
     object_entry_end_[o] = static_cast<int>(triangles_.size());
   }
+  for (int k = 0; k < 3; ++k) {  // padding for Box4's reads past the last box
+    small_lo_[k].insert(small_lo_[k].end(), kHashedPadding,
+                        std::numeric_limits<double>::quiet_NaN());
+    small_hi_[k].insert(small_hi_[k].end(), kHashedPadding,
+                        std::numeric_limits<double>::quiet_NaN());
+  }
   triangle_hash_.Build();
   // current vertex normals, object by object in parallel: of every vertex
   // where most of the surface is in play, else only of the entries'
@@ -780,24 +809,14 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
           };
           if (object_small_[b]) {
             // a small object's triangles are all in its list, none in the
-            // grid: their boxes are tested in a row (a loop the compiler
-            // vectorises), then the few that overlap
+            // grid: their boxes are tested four at a time, then the few
+            // that overlap
             const int begin = object_entry_begin_[b];
-            const int count = object_entry_end_[b] - begin;
             const int first = object_small_begin_[b];
-            const double* lo[3] = {small_lo_[0].data() + first, small_lo_[1].data() + first,
-                                   small_lo_[2].data() + first};
-            const double* hi[3] = {small_hi_[0].data() + first, small_hi_[1].data() + first,
-                                   small_hi_[2].data() + first};
-            std::array<unsigned char, kSmallSurface> overlaps;
-            for (int i = 0; i < count; ++i) {
-              overlaps[i] = (lo[0][i] <= segment_hi.x()) & (segment_lo.x() <= hi[0][i]) &
-                            (lo[1][i] <= segment_hi.y()) & (segment_lo.y() <= hi[1][i]) &
-                            (lo[2][i] <= segment_hi.z()) & (segment_lo.z() <= hi[2][i]);
-            }
-            for (int i = 0; i < count; ++i) {
-              if (overlaps[i]) test_triangle(begin + i);
-            }
+            Box4(segment_lo, segment_hi)
+                .ForEachOverlapping(small_lo_, small_hi_, first,
+                                    first + object_entry_end_[b] - begin,
+                                    [&](int i) { test_triangle(begin + i - first); });
           } else {
             for (int index : large_triangles_) test(index);
             // a triangle covering several of the segment's cells is met in
