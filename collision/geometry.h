@@ -71,22 +71,25 @@ inline bool SegmentTriangle(const Eigen::Vector3d& q, const Eigen::Vector3d& dir
                             const Eigen::Vector3d& a, const Eigen::Vector3d& e1,
                             const Eigen::Vector3d& e2, double edge_lengths, double& t, double& u,
                             double& v) {
-  // Moller-Trumbore: q + t dir = (1-u-v) a + u (a + e1) + v (a + e2)
+  // Moller-Trumbore: q + t dir = (1-u-v) a + u (a + e1) + v (a + e2).
+  // All conditions are evaluated and combined without branches: in stage 2
+  // about four triangles are tested per edge, and the outcome of each early
+  // exit is hard to predict (measured: the mispredictions cost more than
+  // the flops they save). A zero det gives infinite or NaN u, v, t, which
+  // fail the bounds, and is rejected anyway.
   constexpr double kTolerance = 1e-12;
-  Eigen::Vector3d h = dir.cross(e2);
-  double det = e1.dot(h);
-  double scale = edge_lengths * dir_length;
-  if (std::abs(det) <= 1e-14 * scale || scale == 0.0) return false;  // parallel or degenerate
-  double inv = 1.0 / det;
-  Eigen::Vector3d s = q - a;
+  const Eigen::Vector3d h = dir.cross(e2);
+  const double det = e1.dot(h);
+  const double scale = edge_lengths * dir_length;
+  const double inv = 1.0 / det;
+  const Eigen::Vector3d s = q - a;
   u = s.dot(h) * inv;
-  if (u < -kTolerance || u > 1.0 + kTolerance) return false;
-  Eigen::Vector3d k = s.cross(e1);
+  const Eigen::Vector3d k = s.cross(e1);
   v = dir.dot(k) * inv;
-  if (v < -kTolerance || u + v > 1.0 + kTolerance) return false;
   t = e2.dot(k) * inv;
-  if (t < -kTolerance || t > 1.0 + kTolerance) return false;
-  return true;
+  return (std::abs(det) > 1e-14 * scale) & (scale != 0.0) &  // not parallel or degenerate
+         (u >= -kTolerance) & (u <= 1.0 + kTolerance) & (v >= -kTolerance) &
+         (u + v <= 1.0 + kTolerance) & (t >= -kTolerance) & (t <= 1.0 + kTolerance);
 }
 
 // The same for the segment from q to p and the triangle (a, b, c).
