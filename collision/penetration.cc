@@ -79,6 +79,16 @@ Double4 Load4(const double* p) {
   return v;
 }
 
+// Bit i set: lane i of the mask is true (one instruction with AVX: the
+// lanes' sign bits; the general expression takes about ten).
+unsigned Bits(const Mask4& mask) {
+#if defined(__AVX__)
+  return static_cast<unsigned>(_mm256_movemask_pd(reinterpret_cast<__m256d>(mask)));
+#else
+  return static_cast<unsigned>((mask[0] & 1) | (mask[1] & 2) | (mask[2] & 4) | (mask[3] & 8));
+#endif
+}
+
 // An axis-aligned box that tests four points at a time (stage 1: about 20
 // candidate vertices per tetrahedron, one of them in its box).
 class Box4 {
@@ -91,22 +101,14 @@ class Box4 {
         hi_y_(Double4{} + hi.y()),
         hi_z_(Double4{} + hi.z()) {}
 
-  // visit(i), in increasing order, for every box i in [begin, end) of the
-  // boxes [lo[k][i], hi[k][i]] (k: the axis) that overlaps this one,
-  // four at a time (reading up to three boxes beyond end)
-  template <typename Visit>
-  void ForEachOverlapping(const std::vector<double> (&lo)[3], const std::vector<double> (&hi)[3],
-                          int begin, int end, Visit&& visit) const {
+  // Bit j set: box i + j (< end) of the boxes [lo[k][i], hi[k][i]] (k:
+  // the axis) overlaps this one (reads four boxes from i).
+  unsigned Overlapping(const std::vector<double> (&lo)[3], const std::vector<double> (&hi)[3],
+                       int i, int end) const {
     constexpr Mask4 kLane = {0, 1, 2, 3};
-    for (int i = begin; i < end; i += 4) {
-      const Mask4 overlap = (Load4(&lo[0][i]) <= hi_x_) & (lo_x_ <= Load4(&hi[0][i])) &
-                            (Load4(&lo[1][i]) <= hi_y_) & (lo_y_ <= Load4(&hi[1][i])) &
-                            (Load4(&lo[2][i]) <= hi_z_) & (lo_z_ <= Load4(&hi[2][i])) &
-                            (kLane + i < end);
-      for (unsigned bits = Bits(overlap); bits != 0; bits &= bits - 1) {
-        visit(i + std::countr_zero(bits));
-      }
-    }
+    return Bits((Load4(&lo[0][i]) <= hi_x_) & (lo_x_ <= Load4(&hi[0][i])) &
+                (Load4(&lo[1][i]) <= hi_y_) & (lo_y_ <= Load4(&hi[1][i])) &
+                (Load4(&lo[2][i]) <= hi_z_) & (lo_z_ <= Load4(&hi[2][i])) & (kLane + i < end));
   }
 
   // visit(e), in increasing order, for every entry e in [begin, end) of
@@ -127,18 +129,39 @@ class Box4 {
   }
 
  private:
-  // bit i set: lane i of the mask is true (one instruction with AVX: the
-  // lanes' sign bits; the general expression takes about ten)
-  static unsigned Bits(const Mask4& mask) {
-#if defined(__AVX__)
-    return static_cast<unsigned>(_mm256_movemask_pd(reinterpret_cast<__m256d>(mask)));
-#else
-    return static_cast<unsigned>((mask[0] & 1) | (mask[1] & 2) | (mask[2] & 4) | (mask[3] & 8));
-#endif
-  }
-
   Double4 lo_x_, lo_y_, lo_z_, hi_x_, hi_y_, hi_z_;
 };
+
+// SegmentTriangle (geometry.h) for the four triangles i..i+3 of arrays by
+// coordinate (corner[0], edge[0], edge[1] and edge_lengths of
+// TriangleGeometry), the same arithmetic lane by lane. Bit j set: the
+// segment from q to q + dir crosses triangle i + j, at t[j], (u[j], v[j]).
+unsigned SegmentTriangles4(const Eigen::Vector3d& q, const Eigen::Vector3d& dir, double dir_length,
+                           const std::vector<double> (&corner)[3],
+                           const std::vector<double> (&edge0)[3],
+                           const std::vector<double> (&edge1)[3],
+                           const std::vector<double>& edge_lengths, int i, Double4& t, Double4& u,
+                           Double4& v) {
+  constexpr double kTolerance = 1e-12;
+  const Double4 e1[3] = {Load4(&edge0[0][i]), Load4(&edge0[1][i]), Load4(&edge0[2][i])};
+  const Double4 e2[3] = {Load4(&edge1[0][i]), Load4(&edge1[1][i]), Load4(&edge1[2][i])};
+  const Double4 h[3] = {dir.y() * e2[2] - dir.z() * e2[1], dir.z() * e2[0] - dir.x() * e2[2],
+                        dir.x() * e2[1] - dir.y() * e2[0]};
+  const Double4 det = e1[0] * h[0] + e1[1] * h[1] + e1[2] * h[2];
+  const Double4 scale = Load4(&edge_lengths[i]) * dir_length;
+  const Double4 inv = 1.0 / det;
+  const Double4 s[3] = {q.x() - Load4(&corner[0][i]), q.y() - Load4(&corner[1][i]),
+                        q.z() - Load4(&corner[2][i])};
+  u = (s[0] * h[0] + s[1] * h[1] + s[2] * h[2]) * inv;
+  const Double4 k[3] = {s[1] * e1[2] - s[2] * e1[1], s[2] * e1[0] - s[0] * e1[2],
+                        s[0] * e1[1] - s[1] * e1[0]};
+  v = (dir.x() * k[0] + dir.y() * k[1] + dir.z() * k[2]) * inv;
+  t = (e2[0] * k[0] + e2[1] * k[1] + e2[2] * k[2]) * inv;
+  const Double4 min_det = 1e-14 * scale;
+  return Bits(((det > min_det) | (-det > min_det)) & (scale != 0.0) & (u >= -kTolerance) &
+              (u <= 1.0 + kTolerance) & (v >= -kTolerance) & (u + v <= 1.0 + kTolerance) &
+              (t >= -kTolerance) & (t <= 1.0 + kTolerance));
+}
 
 // Grows a bounding box by kBoxMargin times its largest extent on every side.
 // The inside and crossing tests accept points a relative 1e-12 outside
@@ -595,9 +618,12 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
   triangles_.clear();
   triangle_geometry_.clear();
   for (int k = 0; k < 3; ++k) {
-    small_lo_[k].clear();
-    small_hi_[k].clear();
+    for (auto* values :
+         {&small_.lo[k], &small_.hi[k], &small_.corner[k], &small_.edge0[k], &small_.edge1[k]}) {
+      values->clear();
+    }
   }
+  small_.edge_lengths.clear();
   large_triangles_.clear();
   object_cell_lo_.resize(num_objects);
   object_cell_hi_.resize(num_objects);
@@ -618,7 +644,7 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
     object_fully_hashed_[o] = full;
     object_small_[o] = surface.rows() <= kSmallSurface;
     object_entry_begin_[o] = static_cast<int>(triangles_.size());
-    object_small_begin_[o] = static_cast<int>(small_lo_[0].size());
+    object_small_begin_[o] = static_cast<int>(small_.edge_lengths.size());
     if (object_small_[o]) object_fully_hashed_[o] = 1;
     for (int f = 0; f < surface.rows(); ++f) {
       if (object_small_[o]) {
@@ -630,12 +656,15 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
     }
     object_entry_end_[o] = static_cast<int>(triangles_.size());
   }
-  for (int k = 0; k < 3; ++k) {  // padding for Box4's reads past the last box
-    small_lo_[k].insert(small_lo_[k].end(), kHashedPadding,
-                        std::numeric_limits<double>::quiet_NaN());
-    small_hi_[k].insert(small_hi_[k].end(), kHashedPadding,
-                        std::numeric_limits<double>::quiet_NaN());
+  // padding for four-wide reads past the last entry
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  for (int k = 0; k < 3; ++k) {
+    for (auto* values :
+         {&small_.lo[k], &small_.hi[k], &small_.corner[k], &small_.edge0[k], &small_.edge1[k]}) {
+      values->insert(values->end(), kHashedPadding, nan);
+    }
   }
+  small_.edge_lengths.insert(small_.edge_lengths.end(), kHashedPadding, nan);
   triangle_hash_.Build();
   // current vertex normals, object by object in parallel: of every vertex
   // where most of the surface is in play, else only of the entries'
@@ -718,9 +747,13 @@ void PenetrationSolver::AddTriangle(std::span<const CollisionObject> objects, in
   triangle_geometry_.push_back(geometry);
   if (!grid) {  // a small object's: its box by coordinate too, not hashed
     for (int k = 0; k < 3; ++k) {
-      small_lo_[k].push_back(entry.lo[k]);
-      small_hi_[k].push_back(entry.hi[k]);
+      small_.lo[k].push_back(entry.lo[k]);
+      small_.hi[k].push_back(entry.hi[k]);
+      small_.corner[k].push_back(geometry.corner[0][k]);
+      small_.edge0[k].push_back(geometry.edge[0][k]);
+      small_.edge1[k].push_back(geometry.edge[1][k]);
     }
+    small_.edge_lengths.push_back(geometry.edge_lengths);
     return;
   }
   if (CellCount(geometry.cell_lo, geometry.cell_hi) > kMaxTriangleCells) {
@@ -789,25 +822,29 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
           Eigen::Vector3d segment_hi = q.cwiseMax(p);
           Inflate(segment_lo, segment_hi);
           // the crossing with an entry of B whose box overlaps the segment's
-          auto test_triangle = [&](int index) {
+          // the crossing with entry `index` at q + t dir, (u, w) in the
+          // triangle: the nearest to q is kept, ties broken by entry for
+          // determinism
+          auto consider = [&](int index, double t, double u, double w) {
             if (a == b) {  // self-collision: the edge's own triangles do not count
               for (int k = 0; k < 3; ++k) {
                 const int c = surface_b(triangles_[index].face, k);
                 if (c == v || c == q_local) return;
               }
             }
-            const TriangleGeometry& triangle = triangle_geometry_[index];
-            double t, u, w;
-            if (!SegmentTriangle(q, dir, dir_length, triangle.corner[0], triangle.edge[0],
-                                 triangle.edge[1], triangle.edge_lengths, t, u, w)) {
-              return;
-            }
-            // nearest to q; ties broken by entry for determinism
             if (t < best_t || (t == best_t && index < best_entry)) {
               best_t = t;
               best_entry = index;
               best_u = u;
               best_v = w;
+            }
+          };
+          auto test_triangle = [&](int index) {
+            const TriangleGeometry& triangle = triangle_geometry_[index];
+            double t, u, w;
+            if (SegmentTriangle(q, dir, dir_length, triangle.corner[0], triangle.edge[0],
+                                triangle.edge[1], triangle.edge_lengths, t, u, w)) {
+              consider(index, t, u, w);
             }
           };
           auto test = [&](int index) {
@@ -818,14 +855,22 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
           };
           if (object_small_[b]) {
             // a small object's triangles are all in its list, none in the
-            // grid: their boxes are tested four at a time, then the few
-            // that overlap
+            // grid: tested four at a time, box and crossing
             const int begin = object_entry_begin_[b];
             const int first = object_small_begin_[b];
-            Box4(segment_lo, segment_hi)
-                .ForEachOverlapping(small_lo_, small_hi_, first,
-                                    first + object_entry_end_[b] - begin,
-                                    [&](int i) { test_triangle(begin + i - first); });
+            const int end = first + object_entry_end_[b] - begin;
+            const Box4 segment_box(segment_lo, segment_hi);
+            for (int i = first; i < end; i += 4) {
+              Double4 t, u, w;
+              const unsigned crossed =
+                  segment_box.Overlapping(small_.lo, small_.hi, i, end) &
+                  SegmentTriangles4(q, dir, dir_length, small_.corner, small_.edge0, small_.edge1,
+                                    small_.edge_lengths, i, t, u, w);
+              for (unsigned bits = crossed; bits != 0; bits &= bits - 1) {
+                const int lane = std::countr_zero(bits);
+                consider(begin + i - first + lane, t[lane], u[lane], w[lane]);
+              }
+            }
           } else {
             for (int index : large_triangles_) test(index);
             // a triangle covering several of the segment's cells is met in

@@ -244,8 +244,15 @@ class PenetrationSolver {
   SpatialHash triangle_hash_;             // stage 2 and closest features: surface triangles
   std::vector<TriangleEntry> triangles_;  // the entries, by object
   std::vector<TriangleGeometry> triangle_geometry_;  // per entry
-  // small objects' entries: their boxes by coordinate, in entry order
-  std::vector<double> small_lo_[3], small_hi_[3];
+  // small objects' entries by coordinate, in entry order (stage 2 tests
+  // four at a time), each array padded by kHashedPadding NaN
+  struct SmallTriangles {
+    std::vector<double> lo[3], hi[3];        // the box
+    std::vector<double> corner[3];           // TriangleGeometry's corner[0]
+    std::vector<double> edge0[3], edge1[3];  // and edges
+    std::vector<double> edge_lengths;
+  };
+  SmallTriangles small_;
   std::vector<int> object_small_begin_;      // #objects: its first box there
   std::vector<int> large_triangles_;         // entries too large to hash
   std::vector<TriangleStamps> thread_seen_;  // #threads

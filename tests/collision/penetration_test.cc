@@ -91,35 +91,148 @@ TEST(CollidingPoints, HashMatchesBruteForceOnRandomScenes) {
   }
 }
 
-TEST(CollidingPoints, HashMatchesBruteForceInCrowdedScenes) {
-  // a pile of small bodies in and around a large one, and a folded bar with
-  // self-collision: objects with many partners read every vertex near a
-  // tetrahedron at once, the others their partners' vertices only; both
-  // against brute force
-  std::mt19937 rng(11);
+// A pile of small bodies in and around a large one: a large box
+// (rigid in odd trials), 14 small bodies (the paper's 20-tet spheres among
+// them), and a bar folded into itself with self-collision.
+TestScene CrowdedScene(int trial) {
+  std::mt19937 rng(11 + trial);
   std::uniform_real_distribution<double> offset(-0.07, 0.07);
   std::uniform_real_distribution<double> angle(0.0, std::numbers::pi);
   const char* shapes[] = {"sphere:size=0.03:res=0", "box:size=0.03,0.02,0.025:res=2",
                           "capsule:size=0.01,0.02:res=2"};
+  TestScene scene;
+  scene.Add(TetMesh::Build(MakeShape("box:size=0.12,0.12,0.12:res=4")), Pose({0, 0, 0}),
+            /*rigid=*/trial % 2 == 1);
+  for (int k = 0; k < 14; ++k) {
+    Eigen::Vector3d axis(offset(rng), offset(rng), offset(rng) + 0.01);
+    scene.Add(TetMesh::Build(MakeShape(shapes[k % 3])),
+              Pose({offset(rng), offset(rng), offset(rng)}, angle(rng), axis),
+              /*rigid=*/k % 5 == 4);
+  }
+  int bar = scene.Add(TetMesh::Build(MakeShape("box:size=0.2,0.02,0.02:res=10,1,1")),
+                      Pose({0, 0.01 * trial, 0}), false, /*self_collision=*/true);
+  Positions& x = *scene.positions[bar];
+  for (Eigen::Index v = 0; v < x.rows(); ++v) {
+    if (x(v, 0) > 0.19) x(v, 0) = -0.03;
+  }
+  return scene;
+}
+
+TEST(CollidingPoints, HashMatchesBruteForceInCrowdedScenes) {
+  // objects with many partners read every vertex near a tetrahedron at
+  // once, the others their partners' vertices only; both against brute
+  // force
   for (int trial = 0; trial < 4; ++trial) {
-    TestScene scene;
-    scene.Add(TetMesh::Build(MakeShape("box:size=0.12,0.12,0.12:res=4")), Pose({0, 0, 0}),
-              /*rigid=*/trial % 2 == 1);
-    for (int k = 0; k < 14; ++k) {
-      Eigen::Vector3d axis(offset(rng), offset(rng), offset(rng) + 0.01);
-      scene.Add(TetMesh::Build(MakeShape(shapes[k % 3])),
-                Pose({offset(rng), offset(rng), offset(rng)}, angle(rng), axis),
-                /*rigid=*/k % 5 == 4);
-    }
-    // a bar folded into itself, lying across the pile
-    int bar = scene.Add(TetMesh::Build(MakeShape("box:size=0.2,0.02,0.02:res=10,1,1")),
-                        Pose({0, 0.01 * trial, 0}), false, /*self_collision=*/true);
-    Positions& x = *scene.positions[bar];
-    for (Eigen::Index v = 0; v < x.rows(); ++v) {
-      if (x(v, 0) > 0.19) x(v, 0) = -0.03;
-    }
     SCOPED_TRACE(trial);
-    ExpectSameCollidingPointsAtThreeCellSizes(scene);
+    ExpectSameCollidingPointsAtThreeCellSizes(CrowdedScene(trial));
+  }
+}
+
+// Stages 2 and 3 by brute force (method.md): for every colliding point p
+// and neighbour q not inside B, the crossing of q -> p with any of B's
+// surface triangles nearest q, its smooth normal, and the border point's
+// depth and direction from the inverse-squared-distance weights; the
+// solver's border points must match, whatever path found the crossings
+// (small objects' triangles four at a time, the hashed grid, triangles
+// too large to hash).
+void ExpectBorderPointsMatchBruteForce(const TestScene& scene, double cell_size) {
+  PenetrationOptions options;
+  options.cell_size = cell_size;
+  PenetrationSolver solver(options);
+  const std::vector<PenetrationResult> results = solver.Solve(scene.objects);
+  std::map<std::tuple<int, int, int>, const PenetrationResult*> colliding;
+  for (const PenetrationResult& r : results) colliding[{r.object, r.vertex, r.penetrated}] = &r;
+  std::vector<Positions> normals(scene.objects.size());
+  for (size_t o = 0; o < scene.objects.size(); ++o) {
+    ComputeVertexNormals(*scene.objects[o].positions, scene.objects[o].mesh->surface(), normals[o]);
+  }
+  const double on_surface = 1e-9 * cell_size;
+  int border = 0;
+  for (const PenetrationResult& r : results) {
+    const TetMesh& mesh_a = *scene.objects[r.object].mesh;
+    const TetMesh& mesh_b = *scene.objects[r.penetrated].mesh;
+    const Positions& x_a = *scene.objects[r.object].positions;
+    const Positions& x_b = *scene.objects[r.penetrated].positions;
+    const Triangles& surface = mesh_b.surface();
+    const Eigen::Vector3d p = x_a.row(r.vertex).transpose();
+    double weight_sum = 0.0, depth_sum = 0.0, nearest_distance = 1e300;
+    Eigen::Vector3d normal_sum = Eigen::Vector3d::Zero();
+    Eigen::Vector3d nearest_normal = Eigen::Vector3d::Zero();
+    for (int n = mesh_a.adjacency_offsets()[r.vertex]; n < mesh_a.adjacency_offsets()[r.vertex + 1];
+         ++n) {
+      const int q_vertex = mesh_a.adjacency()[n];
+      if (colliding.count({r.object, q_vertex, r.penetrated})) continue;
+      const Eigen::Vector3d q = x_a.row(q_vertex).transpose();
+      double best_t = 1e300, best_u = 0.0, best_v = 0.0;
+      int best_f = -1;
+      for (int f = 0; f < surface.rows(); ++f) {
+        if (r.object == r.penetrated && ((surface.row(f).array() == r.vertex).any() ||
+                                         (surface.row(f).array() == q_vertex).any())) {
+          continue;  // self-collision: the edge's own triangles do not count
+        }
+        double t, u, v;
+        if (SegmentTriangle(q, p, x_b.row(surface(f, 0)).transpose(),
+                            x_b.row(surface(f, 1)).transpose(), x_b.row(surface(f, 2)).transpose(),
+                            t, u, v) &&
+            t < best_t) {
+          best_t = t;
+          best_u = u;
+          best_v = v;
+          best_f = f;
+        }
+      }
+      if (best_f < 0) continue;
+      const Eigen::Vector3d point = q + best_t * (p - q);
+      Eigen::Vector3d normal =
+          ((1.0 - best_u - best_v) * normals[r.penetrated].row(surface(best_f, 0)) +
+           best_u * normals[r.penetrated].row(surface(best_f, 1)) +
+           best_v * normals[r.penetrated].row(surface(best_f, 2)))
+              .transpose();
+      ASSERT_GT(normal.norm(), 1e-6);  // (the scenes have no cancelling vertex normals)
+      normal.normalize();
+      const double distance = (point - p).norm();
+      if (distance < nearest_distance) {
+        nearest_distance = distance;
+        nearest_normal = normal;
+      }
+      if (distance < on_surface) continue;  // p on B's surface (the guard of stage 3)
+      const double w = 1.0 / (distance * distance);
+      weight_sum += w;
+      depth_sum += w * (point - p).dot(normal);
+      normal_sum += w * normal;
+    }
+    SCOPED_TRACE(::testing::Message()
+                 << "object " << r.object << " vertex " << r.vertex << " in " << r.penetrated);
+    if (nearest_distance == 1e300) {  // no crossing: not a border point
+      EXPECT_NE(r.source, DepthSource::kBorder);
+      continue;
+    }
+    ++border;
+    ASSERT_EQ(r.source, DepthSource::kBorder);
+    if (nearest_distance < on_surface || weight_sum == 0.0) {
+      EXPECT_EQ(r.depth, 0.0);
+      EXPECT_LT((r.direction - nearest_normal).norm(), 1e-9);
+    } else {
+      EXPECT_NEAR(r.depth, std::max(0.0, depth_sum / weight_sum), 1e-12);
+      // (normals that cancel leave the nearest crossing's)
+      const Eigen::Vector3d direction = normal_sum.norm() > 1e-12 * weight_sum
+                                            ? Eigen::Vector3d(normal_sum.normalized())
+                                            : nearest_normal;
+      EXPECT_LT((r.direction - direction).norm(), 1e-9);
+    }
+  }
+  EXPECT_GT(border, 20);  // the scene has border points at all
+}
+
+TEST(ConsistentDepth, BorderPointsMatchBruteForceInCrowdedScenes) {
+  for (int trial = 0; trial < 2; ++trial) {
+    const TestScene scene = CrowdedScene(trial);
+    // default-like cells, tiny cells (the large box's triangles are too
+    // large to hash) and huge ones
+    for (double cell : {0.01, 0.002, 0.2}) {
+      SCOPED_TRACE(::testing::Message() << "trial " << trial << " cell " << cell);
+      ExpectBorderPointsMatchBruteForce(scene, cell);
+    }
   }
 }
 
