@@ -615,15 +615,6 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
     if (object_penetrated_[o]) num_triangles += static_cast<int>(objects[o].mesh->surface().rows());
   }
   triangle_hash_.Reset(cell_size_, num_triangles);
-  triangles_.clear();
-  triangle_geometry_.clear();
-  for (int k = 0; k < 3; ++k) {
-    for (auto* values :
-         {&small_.lo[k], &small_.hi[k], &small_.corner[k], &small_.edge0[k], &small_.edge1[k]}) {
-      values->clear();
-    }
-  }
-  small_.edge_lengths.clear();
   large_triangles_.clear();
   object_cell_lo_.resize(num_objects);
   object_cell_hi_.resize(num_objects);
@@ -633,66 +624,96 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
   object_rest_begin_.assign(num_objects, 0);
   object_small_begin_.assign(num_objects, 0);
   object_rest_end_.assign(num_objects, 0);
+  object_faces_.resize(num_objects);
   penetrated_list_.clear();
   for (int o = 0; o < num_objects; ++o) {
-    if (object_penetrated_[o]) penetrated_list_.push_back(o);
-  }
-  for (int o : penetrated_list_) {
-    const Triangles& surface = objects[o].mesh->surface();
+    if (!object_penetrated_[o]) continue;
+    penetrated_list_.push_back(o);
     object_cell_lo_[o] = triangle_hash_.CellOf(object_lo_[o]);
     object_cell_hi_[o] = triangle_hash_.CellOf(object_hi_[o]);
-    object_fully_hashed_[o] = full;
-    object_small_[o] = surface.rows() <= kSmallSurface;
-    object_entry_begin_[o] = static_cast<int>(triangles_.size());
-    object_small_begin_[o] = static_cast<int>(small_.edge_lengths.size());
-    if (object_small_[o]) object_fully_hashed_[o] = 1;
-    for (int f = 0; f < surface.rows(); ++f) {
-      if (object_small_[o]) {
-        AddTriangle(objects, o, f, /*grid=*/false, TriangleRegion::kAll);
-      } else {
-        AddTriangle(objects, o, f, /*grid=*/true,
-                    full ? TriangleRegion::kAll : TriangleRegion::kInside);
-      }
-    }
-    object_entry_end_[o] = static_cast<int>(triangles_.size());
+    object_small_[o] = objects[o].mesh->surface().rows() <= kSmallSurface;
+    object_fully_hashed_[o] = full || object_small_[o];
   }
-  // padding for four-wide reads past the last entry
+  const int num_penetrated = static_cast<int>(penetrated_list_.size());
+  // object by object in parallel (a small object's every triangle, a
+  // hashed one's in the region a partner can reach unless full): pass 1
+  // lists the faces, then the entries are placed object after object, pass
+  // 2 fills them and computes the object's current vertex normals (of
+  // every vertex where most of the surface is in play, else only of the
+  // entries' vertices: stage 2 reads the normals of the triangles it
+  // crosses); the hashed entries go into the grid in entry order
+  const int threads = ThreadsFor(options_.num_threads, num_triangles, 1024);
+  ParallelFor(
+      threads, 0, num_penetrated,
+      [&](int i) {
+        const int o = penetrated_list_[i];
+        const int num_faces = static_cast<int>(objects[o].mesh->surface().rows());
+        std::vector<int>& faces = object_faces_[o];
+        faces.clear();
+        const TriangleRegion region =
+            object_fully_hashed_[o] ? TriangleRegion::kAll : TriangleRegion::kInside;
+        for (int f = 0; f < num_faces; ++f) {
+          if (TriangleInRegion(objects, o, f, region)) faces.push_back(f);
+        }
+      },
+      Schedule::kDynamic, 1);
+  int num_entries = 0, num_small = 0;
+  for (int o : penetrated_list_) {
+    object_entry_begin_[o] = num_entries;
+    num_entries += static_cast<int>(object_faces_[o].size());
+    object_entry_end_[o] = num_entries;
+    object_small_begin_[o] = num_small;
+    if (object_small_[o]) num_small += static_cast<int>(object_faces_[o].size());
+  }
+  triangles_.resize(num_entries);
+  triangle_geometry_.resize(num_entries);
+  // (padding for four-wide reads past the last entry)
   const double nan = std::numeric_limits<double>::quiet_NaN();
   for (int k = 0; k < 3; ++k) {
     for (auto* values :
          {&small_.lo[k], &small_.hi[k], &small_.corner[k], &small_.edge0[k], &small_.edge1[k]}) {
-      values->insert(values->end(), kHashedPadding, nan);
+      values->assign(num_small + kHashedPadding, nan);
     }
   }
-  small_.edge_lengths.insert(small_.edge_lengths.end(), kHashedPadding, nan);
-  triangle_hash_.Build();
-  // current vertex normals, object by object in parallel: of every vertex
-  // where most of the surface is in play, else only of the entries'
-  // vertices (stage 2 reads the normals of the triangles it crosses)
+  small_.edge_lengths.assign(num_small + kHashedPadding, nan);
   if (++normal_round_ == 0) {  // wrapped: stamps would be ambiguous
     for (auto& stamps : normal_stamp_) std::fill(stamps.begin(), stamps.end(), 0);
     normal_round_ = 1;
   }
   normal_stamp_.resize(num_objects);
-  const int num_penetrated = static_cast<int>(penetrated_list_.size());
   ParallelFor(
-      num_triangles >= 4096 ? ThreadsFor(options_.num_threads, num_penetrated, 1) : 1, 0,
-      num_penetrated,
+      threads, 0, num_penetrated,
       [&](int i) {
         const int o = penetrated_list_[i];
+        const std::vector<int>& faces = object_faces_[o];
+        for (int n = 0; n < static_cast<int>(faces.size()); ++n) {
+          const int index = object_entry_begin_[o] + n;
+          TriangleEntry& entry = triangles_[index];
+          TriangleGeometry& geometry = triangle_geometry_[index];
+          MakeTriangle(objects, o, faces[n], entry, geometry);
+          if (!object_small_[o]) continue;
+          const int s = object_small_begin_[o] + n;  // its boxes and geometry by coordinate
+          for (int k = 0; k < 3; ++k) {
+            small_.lo[k][s] = entry.lo[k];
+            small_.hi[k][s] = entry.hi[k];
+            small_.corner[k][s] = geometry.corner[0][k];
+            small_.edge0[k][s] = geometry.edge[0][k];
+            small_.edge1[k][s] = geometry.edge[1][k];
+          }
+          small_.edge_lengths[s] = geometry.edge_lengths;
+        }
         const TetMesh& mesh = *objects[o].mesh;
         const Positions& x = *objects[o].positions;
-        const int num_entries = object_entry_end_[o] - object_entry_begin_[o];
-        if (2 * num_entries > mesh.surface().rows()) {
+        if (2 * static_cast<int>(faces.size()) > mesh.surface().rows()) {
           ComputeVertexNormals(x, mesh.surface(), normals_[o]);
           return;
         }
         normals_[o].resize(mesh.num_vertices(), 3);
         std::vector<std::uint32_t>& stamp = normal_stamp_[o];
         stamp.resize(mesh.num_vertices(), 0);
-        for (int e = object_entry_begin_[o]; e < object_entry_end_[o]; ++e) {
+        for (int f : faces) {
           for (int k = 0; k < 3; ++k) {
-            const int v = mesh.surface()(triangles_[e].face, k);
+            const int v = mesh.surface()(f, k);
             if (stamp[v] == normal_round_) continue;
             stamp[v] = normal_round_;
             normals_[o].row(v) = VertexNormal(mesh, x, v).transpose();
@@ -700,6 +721,13 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
         }
       },
       Schedule::kDynamic, 1);
+  for (int o : penetrated_list_) {
+    if (object_small_[o]) continue;  // (not hashed: tested from the list)
+    for (int index = object_entry_begin_[o]; index < object_entry_end_[o]; ++index) {
+      InsertTriangle(index);
+    }
+  }
+  triangle_hash_.Build();
   timings_.surfaces += SecondsSince(start);
 }
 
@@ -709,32 +737,48 @@ void PenetrationSolver::HashRemainingTriangles(std::span<const CollisionObject> 
   const Triangles& surface = objects[b].mesh->surface();
   object_rest_begin_[b] = static_cast<int>(triangles_.size());
   for (int f = 0; f < surface.rows(); ++f) {
-    AddTriangle(objects, b, f, /*grid=*/true, TriangleRegion::kOutside);
+    if (!TriangleInRegion(objects, b, f, TriangleRegion::kOutside)) continue;
+    TriangleEntry entry;
+    TriangleGeometry geometry;
+    MakeTriangle(objects, b, f, entry, geometry);
+    triangles_.push_back(entry);
+    triangle_geometry_.push_back(geometry);
+    InsertTriangle(static_cast<int>(triangles_.size()) - 1);
   }
   object_rest_end_[b] = static_cast<int>(triangles_.size());
 }
 
-void PenetrationSolver::AddTriangle(std::span<const CollisionObject> objects, int object, int f,
-                                    bool grid, TriangleRegion region) {
-  const Positions& x = *objects[object].positions;
+bool PenetrationSolver::TriangleInRegion(std::span<const CollisionObject> objects, int object,
+                                         int f, TriangleRegion region) const {
+  if (region == TriangleRegion::kAll) return true;
   const Triangles& surface = objects[object].mesh->surface();
   // in the search box: not with all three corners beyond one of its sides
   // (the vertices' outcodes, no positions read), and the box overlaps it
   const std::uint8_t* outcode = vertex_outcode_.data() + vertex_offset_[object];
   const bool beyond_a_side =
       (outcode[surface(f, 0)] & outcode[surface(f, 1)] & outcode[surface(f, 2)]) != 0;
-  if (region == TriangleRegion::kInside && beyond_a_side) return;
-  TriangleGeometry geometry;
+  bool inside = false;
+  if (!beyond_a_side) {
+    const Positions& x = *objects[object].positions;
+    Eigen::Vector3d lo = x.row(surface(f, 0)).transpose(), hi = lo;
+    for (int k = 1; k < 3; ++k) {
+      lo = lo.cwiseMin(x.row(surface(f, k)).transpose());
+      hi = hi.cwiseMax(x.row(surface(f, k)).transpose());
+    }
+    Inflate(lo, hi);
+    inside = BoxesOverlap(lo, hi, search_lo_[object], search_hi_[object]);
+  }
+  return inside == (region == TriangleRegion::kInside);
+}
+
+void PenetrationSolver::MakeTriangle(std::span<const CollisionObject> objects, int object, int f,
+                                     TriangleEntry& entry, TriangleGeometry& geometry) const {
+  const Positions& x = *objects[object].positions;
+  const Triangles& surface = objects[object].mesh->surface();
   for (int k = 0; k < 3; ++k) geometry.corner[k] = x.row(surface(f, k)).transpose();
-  TriangleEntry entry;
   entry.lo = geometry.corner[0].cwiseMin(geometry.corner[1]).cwiseMin(geometry.corner[2]);
   entry.hi = geometry.corner[0].cwiseMax(geometry.corner[1]).cwiseMax(geometry.corner[2]);
   Inflate(entry.lo, entry.hi);
-  if (region != TriangleRegion::kAll) {
-    const bool inside =
-        !beyond_a_side && BoxesOverlap(entry.lo, entry.hi, search_lo_[object], search_hi_[object]);
-    if (inside != (region == TriangleRegion::kInside)) return;
-  }
   entry.object = object;
   entry.face = f;
   geometry.edge[0] = geometry.corner[1] - geometry.corner[0];
@@ -742,28 +786,19 @@ void PenetrationSolver::AddTriangle(std::span<const CollisionObject> objects, in
   geometry.edge_lengths = geometry.edge[0].norm() * geometry.edge[1].norm();
   geometry.cell_lo = triangle_hash_.CellOf(entry.lo);
   geometry.cell_hi = triangle_hash_.CellOf(entry.hi);
-  const int index = static_cast<int>(triangles_.size());
-  triangles_.push_back(entry);
-  triangle_geometry_.push_back(geometry);
-  if (!grid) {  // a small object's: its box by coordinate too, not hashed
-    for (int k = 0; k < 3; ++k) {
-      small_.lo[k].push_back(entry.lo[k]);
-      small_.hi[k].push_back(entry.hi[k]);
-      small_.corner[k].push_back(geometry.corner[0][k]);
-      small_.edge0[k].push_back(geometry.edge[0][k]);
-      small_.edge1[k].push_back(geometry.edge[1][k]);
-    }
-    small_.edge_lengths.push_back(geometry.edge_lengths);
-    return;
-  }
+}
+
+void PenetrationSolver::InsertTriangle(int index) {
+  const TriangleGeometry& geometry = triangle_geometry_[index];
   if (CellCount(geometry.cell_lo, geometry.cell_hi) > kMaxTriangleCells) {
     large_triangles_.push_back(index);
     return;
   }
+  const int key = triangles_[index].object + 1;
   for (int k = geometry.cell_lo.z(); k <= geometry.cell_hi.z(); ++k) {
     for (int j = geometry.cell_lo.y(); j <= geometry.cell_hi.y(); ++j) {
       for (int i = geometry.cell_lo.x(); i <= geometry.cell_hi.x(); ++i) {
-        triangle_hash_.Insert({i, j, k}, index, object + 1);
+        triangle_hash_.Insert({i, j, k}, index, key);
       }
     }
   }

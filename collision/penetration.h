@@ -186,11 +186,17 @@ class PenetrationSolver {
   // which of an object's surface triangles: all, those in its search box
   // (where intersection edges can cross them), the others
   enum class TriangleRegion { kAll, kInside, kOutside };
-  // adds surface triangle f of an object to the entries if it is in the
-  // region, and with grid to the hash too (else kept in the entry list only:
-  // small surfaces)
-  void AddTriangle(std::span<const CollisionObject> objects, int object, int f, bool grid,
-                   TriangleRegion region);
+  // Whether surface triangle f of an object lies in the region: in or out
+  // of the object's search box, or anywhere.
+  bool TriangleInRegion(std::span<const CollisionObject> objects, int object, int f,
+                        TriangleRegion region) const;
+  // The entry and geometry of surface triangle f of an object at its
+  // current position.
+  void MakeTriangle(std::span<const CollisionObject> objects, int object, int f,
+                    TriangleEntry& entry, TriangleGeometry& geometry) const;
+  // Entry `index` into the triangle hash, or the list of triangles too
+  // large to hash.
+  void InsertTriangle(int index);
   void FindCrossings(std::span<const CollisionObject> objects);
   void ComputeBorderPoints(std::span<const CollisionObject> objects);
   void Propagate(std::span<const CollisionObject> objects);
@@ -257,7 +263,8 @@ class PenetrationSolver {
   std::vector<int> large_triangles_;         // entries too large to hash
   std::vector<TriangleStamps> thread_seen_;  // #threads
   std::vector<char> object_penetrated_;
-  std::vector<int> penetrated_list_;  // the objects with object_penetrated_
+  std::vector<int> penetrated_list_;            // the objects with object_penetrated_
+  std::vector<std::vector<int>> object_faces_;  // per penetrated object: its faces in the entries
   std::vector<char> object_fully_hashed_;
   std::vector<char> object_small_;  // #objects: surface tested directly, not hashed
   std::vector<int> object_entry_begin_, object_entry_end_;  // #objects: its triangle entries
