@@ -856,7 +856,6 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
           Eigen::Vector3d segment_lo = q.cwiseMin(p);
           Eigen::Vector3d segment_hi = q.cwiseMax(p);
           Inflate(segment_lo, segment_hi);
-          // the crossing with an entry of B whose box overlaps the segment's
           // the crossing with entry `index` at q + t dir, (u, w) in the
           // triangle: the nearest to q is kept, ties broken by entry for
           // determinism
@@ -882,6 +881,7 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
               consider(index, t, u, w);
             }
           };
+          // an entry of B whose box overlaps the segment's
           auto test = [&](int index) {
             const TriangleEntry& entry = triangles_[index];
             if (entry.object == b && BoxesOverlap(entry.lo, entry.hi, segment_lo, segment_hi)) {
