@@ -364,9 +364,9 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
   // what the tetrahedra test, in the hash's bucket order
   const int num_entries = hash_.num_items();
   const double nan = std::numeric_limits<double>::quiet_NaN();
-  hashed_.x.resize(num_entries + kHashedPadding);
-  hashed_.y.resize(num_entries + kHashedPadding);
-  hashed_.z.resize(num_entries + kHashedPadding);
+  hashed_.x.resize(num_entries + kSimdPadding);
+  hashed_.y.resize(num_entries + kSimdPadding);
+  hashed_.z.resize(num_entries + kSimdPadding);
   hashed_.vertex.resize(num_entries);
   hashed_.object.resize(num_entries);
   for (int e = 0; e < num_entries; ++e) {
@@ -378,7 +378,7 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
     hashed_.vertex[e] = g;
     hashed_.object[e] = vertex_object_[g];
   }
-  for (int e = num_entries; e < num_entries + kHashedPadding; ++e) {
+  for (int e = num_entries; e < num_entries + kSimdPadding; ++e) {
     hashed_.x[e] = hashed_.y[e] = hashed_.z[e] = nan;
   }
   timings_.hash += SecondsSince(start);
@@ -540,7 +540,7 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
           });
           const int num_gathered = static_cast<int>(gathered.vertex.size());
           if (num_gathered == 0) return;
-          for (int i = 0; i < kHashedPadding; ++i) {
+          for (int i = 0; i < kSimdPadding; ++i) {
             gathered.x.push_back(std::numeric_limits<double>::quiet_NaN());
             gathered.y.push_back(std::numeric_limits<double>::quiet_NaN());
             gathered.z.push_back(std::numeric_limits<double>::quiet_NaN());
@@ -672,10 +672,10 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
   for (int k = 0; k < 3; ++k) {
     for (auto* values :
          {&small_.lo[k], &small_.hi[k], &small_.corner[k], &small_.edge0[k], &small_.edge1[k]}) {
-      values->assign(num_small + kHashedPadding, nan);
+      values->assign(num_small + kSimdPadding, nan);
     }
   }
-  small_.edge_lengths.assign(num_small + kHashedPadding, nan);
+  small_.edge_lengths.assign(num_small + kSimdPadding, nan);
   if (++normal_round_ == 0) {  // wrapped: stamps would be ambiguous
     for (auto& stamps : normal_stamp_) std::fill(stamps.begin(), stamps.end(), 0);
     normal_round_ = 1;

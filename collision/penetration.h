@@ -140,11 +140,12 @@ class PenetrationSolver {
                                           : tet < o.tet;
     }
   };
+  // Arrays read four entries at a time have this many more entries (NaN),
+  // so that a read from any entry stays inside them.
+  static constexpr int kSimdPadding = 3;
   // the vertices in the stage-1 hash, in its entry (bucket) order, by
   // coordinate so that a tetrahedron tests four candidates at once against
-  // its box; each coordinate array has kHashedPadding more entries (NaN),
-  // so that a 4-wide read from any entry stays inside it
-  static constexpr int kHashedPadding = 3;
+  // its box (padded by kSimdPadding)
   struct HashedVertices {
     std::vector<double> x, y, z;  // position
     std::vector<int> vertex;      // global vertex index
@@ -251,7 +252,7 @@ class PenetrationSolver {
   std::vector<TriangleEntry> triangles_;  // the entries, by object
   std::vector<TriangleGeometry> triangle_geometry_;  // per entry
   // small objects' entries by coordinate, in entry order (stage 2 tests
-  // four at a time), each array padded by kHashedPadding NaN
+  // four at a time), each array padded by kSimdPadding NaN
   struct SmallTriangles {
     std::vector<double> lo[3], hi[3];        // the box
     std::vector<double> corner[3];           // TriangleGeometry's corner[0]
