@@ -59,6 +59,13 @@ inline bool TetBarycentric(const Eigen::Vector3d& a, const Eigen::Vector3d& b,
   return true;
 }
 
+// SegmentTriangle's tolerances: crossings within a relative
+// kSegmentTriangleTolerance of the triangle's edges or the segment's ends
+// count; a segment whose direction is within kSegmentTriangleParallel
+// (relative) of the triangle's plane is taken as parallel.
+constexpr double kSegmentTriangleTolerance = 1e-12;
+constexpr double kSegmentTriangleParallel = 1e-14;
+
 // Where the segment from q to q + dir crosses the triangle (a, a + e1,
 // a + e2), if it does: x = q + t dir, t in [0, 1], and the barycentric
 // coordinates (1-u-v, u, v) of x in the triangle. Points on triangle edges
@@ -77,7 +84,7 @@ inline bool SegmentTriangle(const Eigen::Vector3d& q, const Eigen::Vector3d& dir
   // exit is hard to predict (measured: the mispredictions cost more than
   // the flops they save). A zero det gives infinite or NaN u, v, t, which
   // fail the bounds, and is rejected anyway.
-  constexpr double kTolerance = 1e-12;
+  constexpr double kTolerance = kSegmentTriangleTolerance;
   const Eigen::Vector3d h = dir.cross(e2);
   const double det = e1.dot(h);
   const double scale = edge_lengths * dir_length;
@@ -87,7 +94,8 @@ inline bool SegmentTriangle(const Eigen::Vector3d& q, const Eigen::Vector3d& dir
   const Eigen::Vector3d k = s.cross(e1);
   v = dir.dot(k) * inv;
   t = e2.dot(k) * inv;
-  return (std::abs(det) > 1e-14 * scale) & (scale != 0.0) &  // not parallel or degenerate
+  return (std::abs(det) > kSegmentTriangleParallel * scale) &
+         (scale != 0.0) &  // not parallel or degenerate
          (u >= -kTolerance) & (u <= 1.0 + kTolerance) & (v >= -kTolerance) &
          (u + v <= 1.0 + kTolerance) & (t >= -kTolerance) & (t <= 1.0 + kTolerance);
 }

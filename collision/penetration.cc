@@ -73,6 +73,9 @@ std::uint8_t Outcode(const Eigen::Vector3d& p, const Eigen::Vector3d& lo,
 using Double4 = double __attribute__((vector_size(4 * sizeof(double))));
 using Mask4 = std::int64_t __attribute__((vector_size(4 * sizeof(double))));
 
+// Lane i holds i: lanes e + i at or past an end are masked off with it.
+constexpr Mask4 kLanes = {0, 1, 2, 3};
+
 Double4 Load4(const double* p) {
   Double4 v;
   std::memcpy(&v, p, sizeof v);
@@ -105,10 +108,9 @@ class Box4 {
   // the axis) overlaps this one (reads four boxes from i).
   unsigned Overlapping(const std::vector<double> (&lo)[3], const std::vector<double> (&hi)[3],
                        int i, int end) const {
-    constexpr Mask4 kLane = {0, 1, 2, 3};
     return Bits((Load4(&lo[0][i]) <= hi_x_) & (lo_x_ <= Load4(&hi[0][i])) &
                 (Load4(&lo[1][i]) <= hi_y_) & (lo_y_ <= Load4(&hi[1][i])) &
-                (Load4(&lo[2][i]) <= hi_z_) & (lo_z_ <= Load4(&hi[2][i])) & (kLane + i < end));
+                (Load4(&lo[2][i]) <= hi_z_) & (lo_z_ <= Load4(&hi[2][i])) & (kLanes + i < end));
   }
 
   // visit(e), in increasing order, for every entry e in [begin, end) of
@@ -117,11 +119,10 @@ class Box4 {
   // three entries beyond end: the arrays' padding)
   template <typename Points, typename Visit>
   void ForEachInside(const Points& points, int begin, int end, Visit&& visit) const {
-    constexpr Mask4 kLane = {0, 1, 2, 3};
     for (int e = begin; e < end; e += 4) {
       const Double4 x = Load4(&points.x[e]), y = Load4(&points.y[e]), z = Load4(&points.z[e]);
       const Mask4 inside = (x >= lo_x_) & (x <= hi_x_) & (y >= lo_y_) & (y <= hi_y_) &
-                           (z >= lo_z_) & (z <= hi_z_) & (kLane + e < end);
+                           (z >= lo_z_) & (z <= hi_z_) & (kLanes + e < end);
       for (unsigned bits = Bits(inside); bits != 0; bits &= bits - 1) {
         visit(e + std::countr_zero(bits));
       }
@@ -142,7 +143,7 @@ unsigned SegmentTriangles4(const Eigen::Vector3d& q, const Eigen::Vector3d& dir,
                            const std::vector<double> (&edge1)[3],
                            const std::vector<double>& edge_lengths, int i, Double4& t, Double4& u,
                            Double4& v) {
-  constexpr double kTolerance = 1e-12;
+  constexpr double kTolerance = kSegmentTriangleTolerance;
   const Double4 e1[3] = {Load4(&edge0[0][i]), Load4(&edge0[1][i]), Load4(&edge0[2][i])};
   const Double4 e2[3] = {Load4(&edge1[0][i]), Load4(&edge1[1][i]), Load4(&edge1[2][i])};
   const Double4 h[3] = {dir.y() * e2[2] - dir.z() * e2[1], dir.z() * e2[0] - dir.x() * e2[2],
@@ -157,7 +158,7 @@ unsigned SegmentTriangles4(const Eigen::Vector3d& q, const Eigen::Vector3d& dir,
                         s[0] * e1[1] - s[1] * e1[0]};
   v = (dir.x() * k[0] + dir.y() * k[1] + dir.z() * k[2]) * inv;
   t = (e2[0] * k[0] + e2[1] * k[1] + e2[2] * k[2]) * inv;
-  const Double4 min_det = 1e-14 * scale;
+  const Double4 min_det = kSegmentTriangleParallel * scale;
   return Bits(((det > min_det) | (-det > min_det)) & (scale != 0.0) & (u >= -kTolerance) &
               (u <= 1.0 + kTolerance) & (v >= -kTolerance) & (u + v <= 1.0 + kTolerance) &
               (t >= -kTolerance) & (t <= 1.0 + kTolerance));
@@ -165,7 +166,7 @@ unsigned SegmentTriangles4(const Eigen::Vector3d& q, const Eigen::Vector3d& dir,
 
 // Grows a bounding box by kBoxMargin times its largest extent on every side.
 // The inside and crossing tests accept points a relative 1e-12 outside
-// (kBarycentricTolerance, the segment-triangle tolerance), so a point on a
+// (kBarycentricTolerance, kSegmentTriangleTolerance), so a point on a
 // face may lie outside the exact box by a rounding error and still count;
 // the broad-phase boxes must not drop it.
 constexpr double kBoxMargin = 1e-9;
@@ -174,6 +175,21 @@ inline void Inflate(Eigen::Vector3d& lo, Eigen::Vector3d& hi) {
   const Eigen::Vector3d margin = Eigen::Vector3d::Constant(kBoxMargin * (hi - lo).maxCoeff());
   lo -= margin;
   hi += margin;
+}
+
+// The bounding box of N points, grown by Inflate: the broad-phase box of a
+// tetrahedron, a triangle or a segment.
+template <int N>
+void InflatedBounds(const Eigen::Vector3d (&points)[N], Eigen::Vector3d& lo, Eigen::Vector3d& hi) {
+  // (in locals: lo and hi might alias the points, which would force reloads)
+  Eigen::Vector3d box_lo = points[0], box_hi = points[0];
+  for (int i = 1; i < N; ++i) {
+    box_lo = box_lo.cwiseMin(points[i]);
+    box_hi = box_hi.cwiseMax(points[i]);
+  }
+  Inflate(box_lo, box_hi);
+  lo = box_lo;
+  hi = box_hi;
 }
 
 // How many of the num_threads threads a loop of n items should use: one per
@@ -440,11 +456,7 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
           ChunkTet& tet = chunk[chunk_size];
           const auto vertices = object_b.mesh->tets().row(t);
           for (int i = 0; i < 4; ++i) tet.corner[i] = x.row(vertices[i]).transpose();
-          tet.lo =
-              tet.corner[0].cwiseMin(tet.corner[1]).cwiseMin(tet.corner[2].cwiseMin(tet.corner[3]));
-          tet.hi =
-              tet.corner[0].cwiseMax(tet.corner[1]).cwiseMax(tet.corner[2].cwiseMax(tet.corner[3]));
-          Inflate(tet.lo, tet.hi);
+          InflatedBounds(tet.corner, tet.lo, tet.hi);
           if (!BoxesOverlap(tet.lo, tet.hi, search_lo_[b], search_hi_[b])) continue;
           tet.t = t;
           tet.have_coordinates = false;
@@ -760,12 +772,9 @@ bool PenetrationSolver::TriangleInRegion(std::span<const CollisionObject> object
   bool inside = false;
   if (!beyond_a_side) {
     const Positions& x = *objects[object].positions;
-    Eigen::Vector3d lo = x.row(surface(f, 0)).transpose(), hi = lo;
-    for (int k = 1; k < 3; ++k) {
-      lo = lo.cwiseMin(x.row(surface(f, k)).transpose());
-      hi = hi.cwiseMax(x.row(surface(f, k)).transpose());
-    }
-    Inflate(lo, hi);
+    Eigen::Vector3d corner[3], lo, hi;
+    for (int k = 0; k < 3; ++k) corner[k] = x.row(surface(f, k)).transpose();
+    InflatedBounds(corner, lo, hi);
     inside = BoxesOverlap(lo, hi, search_lo_[object], search_hi_[object]);
   }
   return inside == (region == TriangleRegion::kInside);
@@ -776,9 +785,7 @@ void PenetrationSolver::MakeTriangle(std::span<const CollisionObject> objects, i
   const Positions& x = *objects[object].positions;
   const Triangles& surface = objects[object].mesh->surface();
   for (int k = 0; k < 3; ++k) geometry.corner[k] = x.row(surface(f, k)).transpose();
-  entry.lo = geometry.corner[0].cwiseMin(geometry.corner[1]).cwiseMin(geometry.corner[2]);
-  entry.hi = geometry.corner[0].cwiseMax(geometry.corner[1]).cwiseMax(geometry.corner[2]);
-  Inflate(entry.lo, entry.hi);
+  InflatedBounds(geometry.corner, entry.lo, entry.hi);
   entry.object = object;
   entry.face = f;
   geometry.edge[0] = geometry.corner[1] - geometry.corner[0];
@@ -853,9 +860,9 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
           double best_t = std::numeric_limits<double>::infinity();
           int best_entry = -1;
           double best_u = 0.0, best_v = 0.0;
-          Eigen::Vector3d segment_lo = q.cwiseMin(p);
-          Eigen::Vector3d segment_hi = q.cwiseMax(p);
-          Inflate(segment_lo, segment_hi);
+          const Eigen::Vector3d ends[2] = {q, p};
+          Eigen::Vector3d segment_lo, segment_hi;
+          InflatedBounds(ends, segment_lo, segment_hi);
           // the crossing with entry `index` at q + t dir, (u, w) in the
           // triangle: the nearest to q is kept, ties broken by entry for
           // determinism
