@@ -409,11 +409,8 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
         chunk_offset_[o] + (objects[o].mesh->num_tets() + kChunkTets - 1) / kChunkTets;
   }
   const int num_chunks = chunk_offset_[num_objects];
-  if (static_cast<int>(thread_hits_.size()) < num_threads) thread_hits_.resize(num_threads);
-  for (auto& buffer : thread_hits_) buffer.clear();
-  if (static_cast<int>(thread_gathered_.size()) < num_threads) {
-    thread_gathered_.resize(num_threads);
-  }
+  if (static_cast<int>(thread_scratch_.size()) < num_threads) thread_scratch_.resize(num_threads);
+  for (ThreadScratch& scratch : thread_scratch_) scratch.hits.clear();
 
   // pass 2: the tetrahedra, in chunks of up to kChunkTets consecutive ones
   // of an object in its spatial order (near each other), so that a chunk
@@ -426,8 +423,9 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
   ParallelFor(
       ThreadsFor(num_threads, num_searched, 512 / kChunkTets), 0, num_searched,
       [&](int gc) {
-        std::vector<Hit>& found = thread_hits_[omp_get_thread_num()];
-        HashedVertices& gathered = thread_gathered_[omp_get_thread_num()];
+        ThreadScratch& scratch = thread_scratch_[omp_get_thread_num()];
+        std::vector<Hit>& found = scratch.hits;
+        HashedVertices& gathered = scratch.gathered;
         const int b =
             static_cast<int>(std::upper_bound(chunk_offset_.begin(), chunk_offset_.end(), gc) -
                              chunk_offset_.begin()) -
@@ -588,7 +586,7 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
   // merge and sort: the order (and so the result) does not depend on threads
   hits_.clear();
   for (int i = 0; i < num_threads; ++i) {
-    hits_.insert(hits_.end(), thread_hits_[i].begin(), thread_hits_[i].end());
+    hits_.insert(hits_.end(), thread_scratch_[i].hits.begin(), thread_scratch_[i].hits.end());
   }
   std::sort(hits_.begin(), hits_.end());
   // one tetrahedron per (vertex, object): the one the vertex is deepest in
@@ -654,21 +652,27 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
   // every vertex where most of the surface is in play, else only of the
   // entries' vertices: stage 2 reads the normals of the triangles it
   // crosses); the hashed entries go into the grid in entry order
-  const int threads = ThreadsFor(options_.num_threads, num_triangles, 1024);
+  const int threads = ThreadsFor(options_.num_threads, num_triangles, 128);
+  if (static_cast<int>(thread_scratch_.size()) < threads) thread_scratch_.resize(threads);
+  // consecutive objects to a thread: their entries (and small_'s arrays)
+  // are neighbours, and two threads writing either side of a cache line
+  // would pass it back and forth; a few grabs per thread still balance
+  const int objects_per_grab = std::max(1, num_penetrated / (4 * threads));
   ParallelFor(
       threads, 0, num_penetrated,
       [&](int i) {
         const int o = penetrated_list_[i];
         const int num_faces = static_cast<int>(objects[o].mesh->surface().rows());
-        std::vector<int>& faces = object_faces_[o];
+        std::vector<int>& faces = thread_scratch_[omp_get_thread_num()].faces;
         faces.clear();
         const TriangleRegion region =
             object_fully_hashed_[o] ? TriangleRegion::kAll : TriangleRegion::kInside;
         for (int f = 0; f < num_faces; ++f) {
           if (TriangleInRegion(objects, o, f, region)) faces.push_back(f);
         }
+        object_faces_[o].assign(faces.begin(), faces.end());
       },
-      Schedule::kDynamic, 1);
+      Schedule::kDynamic, objects_per_grab);
   int num_entries = 0, num_small = 0;
   for (int o : penetrated_list_) {
     object_entry_begin_[o] = num_entries;
@@ -732,14 +736,14 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
           }
         }
       },
-      Schedule::kDynamic, 1);
+      Schedule::kDynamic, objects_per_grab);
   for (int o : penetrated_list_) {
     if (object_small_[o]) continue;  // (not hashed: tested from the list)
     for (int index = object_entry_begin_[o]; index < object_entry_end_[o]; ++index) {
       InsertTriangle(index);
     }
   }
-  triangle_hash_.Build();
+  BuildTriangleHash();
   timings_.surfaces += SecondsSince(start);
 }
 
@@ -811,6 +815,26 @@ void PenetrationSolver::InsertTriangle(int index) {
   }
 }
 
+void PenetrationSolver::BuildTriangleHash() {
+  triangle_hash_.Build();
+  const int num_entries = triangle_hash_.num_items();
+  const std::span<const int> items = triangle_hash_.items();
+  for (int k = 0; k < 3; ++k) {
+    std::vector<double>& lo = bucket_boxes_.lo[k];
+    std::vector<double>& hi = bucket_boxes_.hi[k];
+    lo.resize(num_entries + kSimdPadding);
+    hi.resize(num_entries + kSimdPadding);
+    for (int e = 0; e < num_entries; ++e) {
+      const TriangleEntry& entry = triangles_[items[e]];
+      lo[e] = entry.lo[k];
+      hi[e] = entry.hi[k];
+    }
+    for (int e = num_entries; e < num_entries + kSimdPadding; ++e) {
+      lo[e] = hi[e] = std::numeric_limits<double>::quiet_NaN();
+    }
+  }
+}
+
 // stage 2: for every colliding point p and neighbour q outside B, the
 // crossing of the edge q -> p with B's surface nearest q
 void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) {
@@ -828,15 +852,15 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
   }
   crossings_.resize(crossing_offset_[num_hits]);
   // per thread: the query in which each triangle entry was last tested
-  if (static_cast<int>(thread_seen_.size()) < num_threads) thread_seen_.resize(num_threads);
+  if (static_cast<int>(thread_scratch_.size()) < num_threads) thread_scratch_.resize(num_threads);
   for (int i = 0; i < num_threads; ++i) {
-    thread_seen_[i].seen.assign(triangles_.size(), 0);
-    thread_seen_[i].query = 0;
+    thread_scratch_[i].seen.assign(triangles_.size(), 0);
+    thread_scratch_[i].query = 0;
   }
   ParallelFor(
       ThreadsFor(num_threads, num_hits, 64), 0, num_hits,
       [&](int h) {
-        TriangleStamps& stamps = thread_seen_[omp_get_thread_num()];
+        ThreadScratch& scratch = thread_scratch_[omp_get_thread_num()];
         const Hit& hit = hits_[h];
         const int a = vertex_object_[hit.vertex];
         const int b = hit.penetrated;
@@ -915,20 +939,27 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
             }
           } else {
             for (int index : large_triangles_) test(index);
-            // a triangle covering several of the segment's cells is met in
-            // each: test it once per query
-            const std::uint32_t query = ++stamps.query;
+            // the boxes of the buckets of the segment's cells, four at a
+            // time; a triangle covering several of those cells is met in
+            // each: tested once per query
+            const std::uint32_t query = ++scratch.query;
             const Eigen::Vector3i lo = triangle_hash_.CellOf(segment_lo);
             const Eigen::Vector3i hi = triangle_hash_.CellOf(segment_hi);
+            const Box4 segment_box(segment_lo, segment_hi);
+            const std::span<const int> items = triangle_hash_.items();
             for (int k = lo.z(); k <= hi.z(); ++k) {
               for (int j = lo.y(); j <= hi.y(); ++j) {
                 for (int i = lo.x(); i <= hi.x(); ++i) {
                   const SpatialHash::Range range = triangle_hash_.Find({i, j, k}, b + 1);
-                  for (int e = range.begin; e < range.end; ++e) {
-                    const int index = triangle_hash_.items()[e];
-                    if (stamps.seen[index] == query) continue;
-                    stamps.seen[index] = query;
-                    test(index);
+                  for (int e = range.begin; e < range.end; e += 4) {
+                    for (unsigned bits = segment_box.Overlapping(bucket_boxes_.lo, bucket_boxes_.hi,
+                                                                 e, range.end);
+                         bits != 0; bits &= bits - 1) {
+                      const int index = items[e + std::countr_zero(bits)];
+                      if (triangles_[index].object != b || scratch.seen[index] == query) continue;
+                      scratch.seen[index] = query;
+                      test_triangle(index);
+                    }
                   }
                 }
               }
@@ -970,7 +1001,7 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> /*o
   layer_.assign(num_hits, -1);
   // a crossing closer than this to p means p is on the surface: depth 0
   const double on_surface = 1e-9 * cell_size_;
-  ParallelFor(ThreadsFor(options_.num_threads, num_hits, 1024), 0, num_hits, [&](int h) {
+  ParallelFor(ThreadsFor(options_.num_threads, num_hits, 128), 0, num_hits, [&](int h) {
     const Eigen::Vector3d p = Position(hits_[h].vertex);
     double weight_sum = 0.0;
     double depth_sum = 0.0;
@@ -1194,7 +1225,7 @@ void PenetrationSolver::ComputeClosest(std::span<const CollisionObject> objects,
     frontier_.push_back(h);
     HashRemainingTriangles(objects, hits_[h].penetrated);
   }
-  if (static_cast<int>(triangles_.size()) > num_entries) triangle_hash_.Build();
+  if (static_cast<int>(triangles_.size()) > num_entries) BuildTriangleHash();
   const int num_pending = static_cast<int>(frontier_.size());
   ParallelFor(
       ThreadsFor(options_.num_threads, num_pending, 16), 0, num_pending,
