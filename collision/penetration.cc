@@ -1044,32 +1044,41 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> /*o
 void PenetrationSolver::Propagate(std::span<const CollisionObject> objects) {
   Clock::time_point start = Clock::now();
   const int num_hits = static_cast<int>(hits_.size());
+  const int num_threads = std::max(1, options_.num_threads);
   constexpr int kInNextLayer = -2;
-  frontier_.clear();
+  if (static_cast<int>(thread_scratch_.size()) < num_threads) thread_scratch_.resize(num_threads);
+  // the next layer: the points without a value next to a point with one
+  // (the first from the border points; later ones from the candidates the
+  // layer's computation listed), in index order
+  auto add_to_next_layer = [&](int h) {
+    if (layer_[h] != -1) return;
+    layer_[h] = kInNextLayer;
+    next_frontier_.push_back(h);
+  };
+  next_frontier_.clear();
   for (int h = 0; h < num_hits; ++h) {
-    if (layer_[h] == 0) frontier_.push_back(h);
+    if (layer_[h] != 0) continue;
+    const int g = hits_[h].vertex;
+    const int a = vertex_object_[g];
+    const int v = g - vertex_offset_[a];
+    const TetMesh& mesh = *objects[a].mesh;
+    for (int n = mesh.adjacency_offsets()[v]; n < mesh.adjacency_offsets()[v + 1]; ++n) {
+      const int neighbour = FindHit(vertex_offset_[a] + mesh.adjacency()[n], hits_[h].penetrated);
+      if (neighbour >= 0) add_to_next_layer(neighbour);
+    }
   }
   const double coincident = 1e-9 * cell_size_;
   int layer = 0;
-  while (!frontier_.empty()) {
+  while (!next_frontier_.empty()) {
     ++layer;
-    next_frontier_.clear();
-    for (int h : frontier_) {
-      const int g = hits_[h].vertex;
-      const int a = vertex_object_[g];
-      const int v = g - vertex_offset_[a];
-      const TetMesh& mesh = *objects[a].mesh;
-      for (int n = mesh.adjacency_offsets()[v]; n < mesh.adjacency_offsets()[v + 1]; ++n) {
-        int neighbour = FindHit(vertex_offset_[a] + mesh.adjacency()[n], hits_[h].penetrated);
-        if (neighbour >= 0 && layer_[neighbour] == -1) {
-          layer_[neighbour] = kInNextLayer;
-          next_frontier_.push_back(neighbour);
-        }
-      }
-    }
     std::sort(next_frontier_.begin(), next_frontier_.end());
     const int layer_size = static_cast<int>(next_frontier_.size());
-    ParallelFor(ThreadsFor(options_.num_threads, layer_size, 256), 0, layer_size, [&](int i) {
+    const int threads = ThreadsFor(num_threads, layer_size, 256);
+    for (int i = 0; i < threads; ++i) thread_scratch_[i].candidates.clear();
+    // each point of the layer from its neighbours of earlier layers; a
+    // point that gets a value lists its neighbours without one (those of
+    // this layer too: they stay without one if their directions cancel)
+    ParallelFor(threads, 0, layer_size, [&](int i) {
       const int h = next_frontier_[i];
       const int g = hits_[h].vertex;
       const int a = vertex_object_[g];
@@ -1080,10 +1089,16 @@ void PenetrationSolver::Propagate(std::span<const CollisionObject> objects) {
       double depth_sum = 0.0;
       Eigen::Vector3d direction_sum = Eigen::Vector3d::Zero();
       int copy_from = -1;
+      std::vector<int>& candidates = thread_scratch_[omp_get_thread_num()].candidates;
+      const size_t num_listed = candidates.size();
       for (int n = mesh.adjacency_offsets()[v]; n < mesh.adjacency_offsets()[v + 1]; ++n) {
         const int j_global = vertex_offset_[a] + mesh.adjacency()[n];
         const int j = FindHit(j_global, hits_[h].penetrated);
-        if (j < 0 || layer_[j] < 0) continue;  // only points of earlier layers
+        if (j < 0) continue;
+        if (layer_[j] < 0) {  // a later layer, or this one
+          candidates.push_back(j);
+          continue;
+        }
         Eigen::Vector3d to_neighbour = Position(j_global) - p;
         double distance_sq = to_neighbour.squaredNorm();
         if (distance_sq < coincident * coincident) {
@@ -1096,31 +1111,28 @@ void PenetrationSolver::Propagate(std::span<const CollisionObject> objects) {
         depth_sum += mu * (to_neighbour.dot(direction_[j]) + depth_[j]);
         direction_sum += mu * direction_[j];
       }
-      if (copy_from >= 0 || weight_sum == 0.0) {
+      direction_[h] = Eigen::Vector3d::Zero();  // (none: no value yet)
+      if (copy_from >= 0) {
         depth_[h] = depth_[copy_from];
         direction_[h] = direction_[copy_from];
-      } else {
+      } else if (weight_sum > 0.0) {
         depth_[h] = std::max(0.0, depth_sum / weight_sum);
-        double length = direction_sum.norm();
-        if (length > 1e-12 * weight_sum) {
-          direction_[h] = direction_sum / length;
-        } else {  // directions cancel: keep the nearest neighbour's
-          direction_[h] = Eigen::Vector3d::Zero();
-        }
+        const double length = direction_sum.norm();
+        // (directions that cancel leave the point without a value)
+        if (length > 1e-12 * weight_sum) direction_[h] = direction_sum / length;
       }
       source_[h] = DepthSource::kPropagated;
+      if (direction_[h].squaredNorm() == 0.0) candidates.resize(num_listed);
     });
     for (int h : next_frontier_) {
       layer_[h] = direction_[h].squaredNorm() > 0.0 ? layer : -1;
     }
-    std::swap(frontier_, next_frontier_);
-    // points whose neighbour directions cancelled stay unresolved; drop
-    // them from the frontier
-    frontier_.erase(
-        std::remove_if(frontier_.begin(), frontier_.end(), [&](int h) { return layer_[h] < 0; }),
-        frontier_.end());
+    next_frontier_.clear();
+    for (int i = 0; i < threads; ++i) {
+      for (int h : thread_scratch_[i].candidates) add_to_next_layer(h);
+    }
   }
-  stats_.layers = layer > 0 ? layer - 1 : 0;
+  stats_.layers = layer;
   timings_.propagate += SecondsSince(start);
 }
 
