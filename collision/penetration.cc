@@ -927,11 +927,12 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
             const int end = first + object_entry_end_[b] - begin;
             const Box4 segment_box(segment_lo, segment_hi);
             for (int i = first; i < end; i += 4) {
+              const unsigned overlapping = segment_box.Overlapping(small_.lo, small_.hi, i, end);
+              if (overlapping == 0) continue;
               Double4 t, u, w;
               const unsigned crossed =
-                  segment_box.Overlapping(small_.lo, small_.hi, i, end) &
-                  SegmentTriangles4(q, dir, dir_length, small_.corner, small_.edge0, small_.edge1,
-                                    small_.edge_lengths, i, t, u, w);
+                  overlapping & SegmentTriangles4(q, dir, dir_length, small_.corner, small_.edge0,
+                                                  small_.edge1, small_.edge_lengths, i, t, u, w);
               for (unsigned bits = crossed; bits != 0; bits &= bits - 1) {
                 const int lane = std::countr_zero(bits);
                 consider(begin + i - first + lane, t[lane], u[lane], w[lane]);
