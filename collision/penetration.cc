@@ -856,9 +856,10 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
   for (int i = 0; i < num_threads; ++i) {
     thread_scratch_[i].seen.assign(triangles_.size(), 0);
     thread_scratch_[i].query = 0;
+    thread_scratch_[i].edges = 0;
   }
   ParallelFor(
-      ThreadsFor(num_threads, num_hits, 64), 0, num_hits,
+      ThreadsFor(num_threads, num_hits, 16), 0, num_hits,
       [&](int h) {
         ThreadScratch& scratch = thread_scratch_[omp_get_thread_num()];
         const Hit& hit = hits_[h];
@@ -878,6 +879,7 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
           const int q_global = vertex_offset_[a] + q_local;
           if (FindHit(q_global, b) >= 0) continue;  // q is inside B too: not an intersection edge
           crossing.edge = true;
+          ++scratch.edges;
           const Eigen::Vector3d q = Position(q_global);
           const Eigen::Vector3d dir = p - q;
           const double dir_length = dir.norm();
@@ -987,7 +989,7 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
       },
       Schedule::kDynamic, 16);
   int edges = 0;
-  for (const Crossing& crossing : crossings_) edges += crossing.edge;
+  for (int i = 0; i < num_threads; ++i) edges += thread_scratch_[i].edges;
   stats_.intersection_edges = edges;
   timings_.intersect += SecondsSince(start);
 }

@@ -186,6 +186,7 @@ class PenetrationSolver {
     std::vector<std::uint32_t> seen;  // stage 2: per triangle entry, the query
                                       // in which it was last tested
     std::uint32_t query = 0;
+    int edges = 0;                // stage 2: intersection edges met
     std::vector<int> candidates;  // stage 4: points next to the layer's
                                   // points, for the next layer
   };
