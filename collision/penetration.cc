@@ -1076,7 +1076,7 @@ void PenetrationSolver::Propagate(std::span<const CollisionObject> objects) {
     ++layer;
     std::sort(next_frontier_.begin(), next_frontier_.end());
     const int layer_size = static_cast<int>(next_frontier_.size());
-    const int threads = ThreadsFor(num_threads, layer_size, 256);
+    const int threads = ThreadsFor(num_threads, layer_size, 32);
     for (int i = 0; i < threads; ++i) thread_scratch_[i].candidates.clear();
     // each point of the layer from its neighbours of earlier layers; a
     // point that gets a value lists its neighbours without one (those of
