@@ -38,7 +38,9 @@ constexpr long kMaxTetCells = 512;
 // (consecutive in TetMesh::spatial_tet_order) and looks up the cells of a
 // chunk's union of boxes once, unless they are more than kMaxChunkCells.
 // (16: the fewest instructions over the benchmark scenes among 4, 8, 16
-// and 32.)
+// and 32.) An object's last chunk also takes the remainder (up to
+// 2 kChunkTets - 1 tets): a paper sphere's 20 tets are one chunk, not a
+// chunk of 16 and one of 4 that looks up the same cells again.
 constexpr int kChunkTets = 16;
 constexpr long kMaxChunkCells = 64;
 // Objects with more partners than this look up all vertices near a
@@ -405,14 +407,13 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
   chunk_offset_.resize(num_objects + 1);
   chunk_offset_[0] = 0;
   for (int o = 0; o < num_objects; ++o) {
-    chunk_offset_[o + 1] =
-        chunk_offset_[o] + (objects[o].mesh->num_tets() + kChunkTets - 1) / kChunkTets;
+    chunk_offset_[o + 1] = chunk_offset_[o] + std::max(1, objects[o].mesh->num_tets() / kChunkTets);
   }
   const int num_chunks = chunk_offset_[num_objects];
   if (static_cast<int>(thread_scratch_.size()) < num_threads) thread_scratch_.resize(num_threads);
   for (ThreadScratch& scratch : thread_scratch_) scratch.hits.clear();
 
-  // pass 2: the tetrahedra, in chunks of up to kChunkTets consecutive ones
+  // pass 2: the tetrahedra, in chunks of kChunkTets consecutive ones
   // of an object in its spatial order (near each other), so that a chunk
   // looks up the cells of the union of its tets' boxes once and gathers
   // the partner's vertices there, and each tet tests those against its own
@@ -433,7 +434,8 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
         const CollisionObject& object_b = objects[b];
         const Positions& x = *object_b.positions;
         const int first = (gc - chunk_offset_[b]) * kChunkTets;
-        const int last = std::min(first + kChunkTets, object_b.mesh->num_tets());
+        const int last =
+            gc + 1 == chunk_offset_[b + 1] ? object_b.mesh->num_tets() : first + kChunkTets;
         // the chunk's tets whose boxes meet B's search box, and the union
         // of their boxes
         struct ChunkTet {
@@ -443,7 +445,7 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
           TetCoordinates coordinates;  // set at the first vertex in the box
           bool have_coordinates;
         };
-        std::array<ChunkTet, kChunkTets> chunk;
+        std::array<ChunkTet, 2 * kChunkTets - 1> chunk;
         int chunk_size = 0;
         const double inf = std::numeric_limits<double>::infinity();
         Eigen::Vector3d union_lo = Eigen::Vector3d::Constant(inf);
