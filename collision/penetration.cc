@@ -229,6 +229,11 @@ const char* DepthSourceName(DepthSource source) {
 
 PenetrationSolver::PenetrationSolver(PenetrationOptions options) : options_(options) {}
 
+void PenetrationSolver::ResizePadded(std::vector<double>& values, int n) {
+  values.resize(n + kSimdPadding);
+  std::fill(values.begin() + n, values.end(), std::numeric_limits<double>::quiet_NaN());
+}
+
 Eigen::Vector3d PenetrationSolver::Position(int global_vertex) const {
   int object = vertex_object_[global_vertex];
   return positions_[object]->row(global_vertex - vertex_offset_[object]).transpose();
@@ -381,10 +386,9 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
   hash_.Build();
   // what the tetrahedra test, in the hash's bucket order
   const int num_entries = hash_.num_items();
-  const double nan = std::numeric_limits<double>::quiet_NaN();
-  hashed_.x.resize(num_entries + kSimdPadding);
-  hashed_.y.resize(num_entries + kSimdPadding);
-  hashed_.z.resize(num_entries + kSimdPadding);
+  ResizePadded(hashed_.x, num_entries);
+  ResizePadded(hashed_.y, num_entries);
+  ResizePadded(hashed_.z, num_entries);
   hashed_.vertex.resize(num_entries);
   hashed_.object.resize(num_entries);
   for (int e = 0; e < num_entries; ++e) {
@@ -395,9 +399,6 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
     hashed_.z[e] = p.z();
     hashed_.vertex[e] = g;
     hashed_.object[e] = vertex_object_[g];
-  }
-  for (int e = num_entries; e < num_entries + kSimdPadding; ++e) {
-    hashed_.x[e] = hashed_.y[e] = hashed_.z[e] = nan;
   }
   timings_.hash += SecondsSince(start);
 
@@ -552,11 +553,9 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
           });
           const int num_gathered = static_cast<int>(gathered.vertex.size());
           if (num_gathered == 0) return;
-          for (int i = 0; i < kSimdPadding; ++i) {
-            gathered.x.push_back(std::numeric_limits<double>::quiet_NaN());
-            gathered.y.push_back(std::numeric_limits<double>::quiet_NaN());
-            gathered.z.push_back(std::numeric_limits<double>::quiet_NaN());
-          }
+          ResizePadded(gathered.x, num_gathered);
+          ResizePadded(gathered.y, num_gathered);
+          ResizePadded(gathered.z, num_gathered);
           for (int c = 0; c < chunk_size; ++c) {
             ChunkTet& tet = chunk[c];
             const Eigen::Vector3d tet_lo = tet.lo.cwiseMax(lo);
@@ -685,15 +684,13 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
   }
   triangles_.resize(num_entries);
   triangle_geometry_.resize(num_entries);
-  // (padding for four-wide reads past the last entry)
-  const double nan = std::numeric_limits<double>::quiet_NaN();
   for (int k = 0; k < 3; ++k) {
     for (auto* values :
          {&small_.lo[k], &small_.hi[k], &small_.corner[k], &small_.edge0[k], &small_.edge1[k]}) {
-      values->assign(num_small + kSimdPadding, nan);
+      ResizePadded(*values, num_small);
     }
   }
-  small_.edge_lengths.assign(num_small + kSimdPadding, nan);
+  ResizePadded(small_.edge_lengths, num_small);
   if (++normal_round_ == 0) {  // wrapped: stamps would be ambiguous
     for (auto& stamps : normal_stamp_) std::fill(stamps.begin(), stamps.end(), 0);
     normal_round_ = 1;
@@ -824,15 +821,12 @@ void PenetrationSolver::BuildTriangleHash() {
   for (int k = 0; k < 3; ++k) {
     std::vector<double>& lo = bucket_boxes_.lo[k];
     std::vector<double>& hi = bucket_boxes_.hi[k];
-    lo.resize(num_entries + kSimdPadding);
-    hi.resize(num_entries + kSimdPadding);
+    ResizePadded(lo, num_entries);
+    ResizePadded(hi, num_entries);
     for (int e = 0; e < num_entries; ++e) {
       const TriangleEntry& entry = triangles_[items[e]];
       lo[e] = entry.lo[k];
       hi[e] = entry.hi[k];
-    }
-    for (int e = num_entries; e < num_entries + kSimdPadding; ++e) {
-      lo[e] = hi[e] = std::numeric_limits<double>::quiet_NaN();
     }
   }
 }

@@ -143,6 +143,8 @@ class PenetrationSolver {
   // Arrays read four entries at a time have this many more entries (NaN),
   // so that a read from any entry stays inside them.
   static constexpr int kSimdPadding = 3;
+  // Sizes values to n entries and the padding, which it sets to NaN.
+  static void ResizePadded(std::vector<double>& values, int n);
   // the vertices in the stage-1 hash, in its entry (bucket) order, by
   // coordinate so that a tetrahedron tests four candidates at once against
   // its box (padded by kSimdPadding)
@@ -274,6 +276,7 @@ class PenetrationSolver {
     std::vector<double> edge_lengths;
   };
   SmallTriangles small_;
+  std::vector<int> object_small_begin_;  // #objects: its first entry in small_
   // the boxes of the hashed entries in the triangle hash's bucket order
   // (hash entry e: triangle entry triangle_hash_.items()[e]), by coordinate
   // and padded like small_: a stage-2 query tests a bucket's boxes four at
@@ -282,8 +285,7 @@ class PenetrationSolver {
     std::vector<double> lo[3], hi[3];
   };
   BucketBoxes bucket_boxes_;
-  std::vector<int> object_small_begin_;  // #objects: its first box there
-  std::vector<int> large_triangles_;     // entries too large to hash
+  std::vector<int> large_triangles_;  // entries too large to hash
   std::vector<char> object_penetrated_;
   std::vector<int> penetrated_list_;            // the objects with object_penetrated_
   std::vector<std::vector<int>> object_faces_;  // per penetrated object: its faces in the entries
