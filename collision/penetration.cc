@@ -34,14 +34,14 @@ constexpr long kMaxTriangleCells = 64;
 // Tetrahedra whose bounding box covers more cells than this test candidate
 // vertices directly instead of cell by cell.
 constexpr long kMaxTetCells = 512;
-// Stage 1 takes the tetrahedra of an object in chunks of this many
-// (consecutive in TetMesh::spatial_tet_order) and looks up the cells of a
-// chunk's union of boxes once, unless they are more than kMaxChunkCells.
-// (16: the fewest instructions over the benchmark scenes among 4, 8, 16
-// and 32.) An object's last chunk also takes the remainder (up to
-// 2 kChunkTets - 1 tets): a paper sphere's 20 tets are one chunk, not a
-// chunk of 16 and one of 4 that looks up the same cells again.
-constexpr int kChunkTets = 16;
+// Stage 1 takes the tetrahedra of an object in chunks of this many, the
+// runs that TetMesh::spatial_tet_order keeps compact, and looks up the
+// cells of a chunk's union of boxes once, unless they are more than
+// kMaxChunkCells. (16: the fewest instructions over the benchmark scenes
+// among 4, 8, 16 and 32.) An object's last chunk also takes the remainder
+// (up to 2 kChunkTets - 1 tets): a paper sphere's 20 tets are one chunk,
+// not a chunk of 16 and one of 4 that looks up the same cells again.
+constexpr int kChunkTets = TetMesh::kSpatialRun;
 constexpr long kMaxChunkCells = 64;
 // Objects with more partners than this look up all vertices near a
 // tetrahedron at once instead of partner by partner (stage 1).

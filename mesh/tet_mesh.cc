@@ -184,11 +184,11 @@ std::uint64_t SpreadBits(std::uint64_t v) {
   return v;
 }
 
-// How compact runs of kSpatialRun consecutive tetrahedra are in `order`:
-// the sum over runs of the volume of the bounding box of the run's
+// How compact runs of TetMesh::kSpatialRun consecutive tetrahedra are in
+// `order`: the sum over runs of the volume of the bounding box of the run's
 // tetrahedra grown by `margin` along each axis (a spatial hash of cell size
 // `margin` looks up about that volume for the run).
-constexpr int kSpatialRun = 16;
+constexpr int kSpatialRun = TetMesh::kSpatialRun;
 double RunCost(const Positions& positions, const Tets& tets, const std::vector<int>& order,
                double margin) {
   double cost = 0.0;

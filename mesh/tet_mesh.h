@@ -98,11 +98,13 @@ class TetMesh {
   }                                                                               // #V+1
   const std::vector<int>& vertex_triangles() const { return vertex_triangles_; }  // 3#F
 
-  // A permutation of 0..#T-1 in which runs of 16 consecutive tetrahedra
-  // lie close together at rest: the file's order if it already is so (a
-  // generator's, cell by cell), else a Z-order (Morton) curve through the
-  // rest centroids (a mesher's output is in no spatial order). The
-  // collision solver takes tetrahedra in this order.
+  // A permutation of 0..#T-1 in which runs of kSpatialRun consecutive
+  // tetrahedra lie close together at rest: the file's order if it already
+  // is so (a generator's, cell by cell), else a Z-order (Morton) curve
+  // through the rest centroids (a mesher's output is in no spatial order).
+  // The collision solver takes tetrahedra in this order, kSpatialRun at a
+  // time.
+  static constexpr int kSpatialRun = 16;
   const std::vector<int>& spatial_tet_order() const { return spatial_tet_order_; }  // #T
 
   // Unit outward normals of surface vertices (area-weighted average of the

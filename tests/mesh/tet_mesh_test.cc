@@ -142,13 +142,15 @@ TEST(TetMesh, VertexNormalIsTheFullComputationsRowBitForBit) {
   EXPECT_EQ(listed, 3 * mesh.surface().rows());
 }
 
-// the mean volume of the bounding boxes of runs of 16 consecutive tets
+// the mean volume of the bounding boxes of runs of TetMesh::kSpatialRun
+// consecutive tets
 double MeanRunBoxVolume(const TetMesh& mesh, const std::vector<int>& order) {
+  constexpr size_t kRun = TetMesh::kSpatialRun;
   double sum = 0.0;
   int runs = 0;
-  for (size_t begin = 0; begin < order.size(); begin += 16, ++runs) {
+  for (size_t begin = 0; begin < order.size(); begin += kRun, ++runs) {
     Eigen::Vector3d lo = Eigen::Vector3d::Constant(1e300), hi = -lo;
-    for (size_t i = begin; i < std::min(order.size(), begin + 16); ++i) {
+    for (size_t i = begin; i < std::min(order.size(), begin + kRun); ++i) {
       for (int k = 0; k < 4; ++k) {
         lo = lo.cwiseMin(mesh.positions().row(mesh.tets()(order[i], k)).transpose());
         hi = hi.cwiseMax(mesh.positions().row(mesh.tets()(order[i], k)).transpose());
