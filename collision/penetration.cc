@@ -625,8 +625,6 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
   for (int o = 0; o < num_objects; ++o) {
     if (object_penetrated_[o]) num_triangles += static_cast<int>(objects[o].mesh->surface().rows());
   }
-  triangle_hash_.Reset(cell_size_, num_triangles);
-  large_triangles_.clear();
   object_cell_lo_.resize(num_objects);
   object_cell_hi_.resize(num_objects);
   object_small_.assign(num_objects, 0);
@@ -640,8 +638,8 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
   for (int o = 0; o < num_objects; ++o) {
     if (!object_penetrated_[o]) continue;
     penetrated_list_.push_back(o);
-    object_cell_lo_[o] = triangle_hash_.CellOf(object_lo_[o]);
-    object_cell_hi_[o] = triangle_hash_.CellOf(object_hi_[o]);
+    object_cell_lo_[o] = hash_.CellOf(object_lo_[o]);  // (the hashes share cell_size_)
+    object_cell_hi_[o] = hash_.CellOf(object_hi_[o]);
     object_small_[o] = objects[o].mesh->surface().rows() <= kSmallSurface;
     object_fully_hashed_[o] = full || object_small_[o];
   }
@@ -649,10 +647,10 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
   // object by object in parallel (a small object's every triangle, a
   // hashed one's in the region a partner can reach unless full): pass 1
   // lists the faces, then the entries are placed object after object, pass
-  // 2 fills them and computes the object's current vertex normals (of
-  // every vertex where most of the surface is in play, else only of the
-  // entries' vertices: stage 2 reads the normals of the triangles it
-  // crosses); the hashed entries go into the grid in entry order
+  // 2 fills them, hashes them (unless the object is small) and computes
+  // the object's current vertex normals (of every vertex where most of the
+  // surface is in play, else only of the entries' vertices: stage 2 reads
+  // the normals of the triangles it crosses)
   const int threads = ThreadsFor(options_.num_threads, num_triangles, 128);
   if (static_cast<int>(thread_scratch_.size()) < threads) thread_scratch_.resize(threads);
   // consecutive objects to a thread: their entries (and small_'s arrays)
@@ -696,6 +694,7 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
     normal_round_ = 1;
   }
   normal_stamp_.resize(num_objects);
+  object_triangles_.resize(num_objects);
   ParallelFor(
       threads, 0, num_penetrated,
       [&](int i) {
@@ -717,6 +716,22 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
           }
           small_.edge_lengths[s] = geometry.edge_lengths;
         }
+        if (!object_small_[o]) {  // (a small one is tested from the list)
+          // a table twice the size of the (cell, triangle) pairs: few
+          // buckets shared by cells, whose entries a query would test too
+          long num_pairs = 0;
+          for (int index = object_entry_begin_[o]; index < object_entry_end_[o]; ++index) {
+            const long cells =
+                CellCount(triangle_geometry_[index].cell_lo, triangle_geometry_[index].cell_hi);
+            if (cells <= kMaxTriangleCells) num_pairs += cells;
+          }
+          object_triangles_[o].hash.Reset(cell_size_, static_cast<int>(num_pairs));
+          object_triangles_[o].large.clear();
+          for (int index = object_entry_begin_[o]; index < object_entry_end_[o]; ++index) {
+            InsertTriangle(index);
+          }
+          BuildTriangleHash(o);
+        }
         const TetMesh& mesh = *objects[o].mesh;
         const Positions& x = *objects[o].positions;
         if (2 * static_cast<int>(faces.size()) > mesh.surface().rows()) {
@@ -736,13 +751,6 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
         }
       },
       Schedule::kDynamic, objects_per_grab);
-  for (int o : penetrated_list_) {
-    if (object_small_[o]) continue;  // (not hashed: tested from the list)
-    for (int index = object_entry_begin_[o]; index < object_entry_end_[o]; ++index) {
-      InsertTriangle(index);
-    }
-  }
-  BuildTriangleHash();
   timings_.surfaces += SecondsSince(start);
 }
 
@@ -761,6 +769,7 @@ void PenetrationSolver::HashRemainingTriangles(std::span<const CollisionObject> 
     InsertTriangle(static_cast<int>(triangles_.size()) - 1);
   }
   object_rest_end_[b] = static_cast<int>(triangles_.size());
+  if (object_rest_end_[b] > object_rest_begin_[b]) BuildTriangleHash(b);
 }
 
 bool PenetrationSolver::TriangleInRegion(std::span<const CollisionObject> objects, int object,
@@ -794,33 +803,34 @@ void PenetrationSolver::MakeTriangle(std::span<const CollisionObject> objects, i
   geometry.edge[0] = geometry.corner[1] - geometry.corner[0];
   geometry.edge[1] = geometry.corner[2] - geometry.corner[0];
   geometry.edge_lengths = geometry.edge[0].norm() * geometry.edge[1].norm();
-  geometry.cell_lo = triangle_hash_.CellOf(entry.lo);
-  geometry.cell_hi = triangle_hash_.CellOf(entry.hi);
+  geometry.cell_lo = hash_.CellOf(entry.lo);
+  geometry.cell_hi = hash_.CellOf(entry.hi);
 }
 
 void PenetrationSolver::InsertTriangle(int index) {
   const TriangleGeometry& geometry = triangle_geometry_[index];
+  ObjectTriangles& hashed = object_triangles_[triangles_[index].object];
   if (CellCount(geometry.cell_lo, geometry.cell_hi) > kMaxTriangleCells) {
-    large_triangles_.push_back(index);
+    hashed.large.push_back(index);
     return;
   }
-  const int key = triangles_[index].object + 1;
   for (int k = geometry.cell_lo.z(); k <= geometry.cell_hi.z(); ++k) {
     for (int j = geometry.cell_lo.y(); j <= geometry.cell_hi.y(); ++j) {
       for (int i = geometry.cell_lo.x(); i <= geometry.cell_hi.x(); ++i) {
-        triangle_hash_.Insert({i, j, k}, index, key);
+        hashed.hash.Insert({i, j, k}, index);
       }
     }
   }
 }
 
-void PenetrationSolver::BuildTriangleHash() {
-  triangle_hash_.Build();
-  const int num_entries = triangle_hash_.num_items();
-  const std::span<const int> items = triangle_hash_.items();
+void PenetrationSolver::BuildTriangleHash(int object) {
+  ObjectTriangles& hashed = object_triangles_[object];
+  hashed.hash.Build();
+  const int num_entries = hashed.hash.num_items();
+  const std::span<const int> items = hashed.hash.items();
   for (int k = 0; k < 3; ++k) {
-    std::vector<double>& lo = bucket_boxes_.lo[k];
-    std::vector<double>& hi = bucket_boxes_.hi[k];
+    std::vector<double>& lo = hashed.boxes.lo[k];
+    std::vector<double>& hi = hashed.boxes.hi[k];
     ResizePadded(lo, num_entries);
     ResizePadded(hi, num_entries);
     for (int e = 0; e < num_entries; ++e) {
@@ -910,13 +920,7 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
               consider(index, t, u, w);
             }
           };
-          // an entry of B whose box overlaps the segment's
-          auto test = [&](int index) {
-            const TriangleEntry& entry = triangles_[index];
-            if (entry.object == b && BoxesOverlap(entry.lo, entry.hi, segment_lo, segment_hi)) {
-              test_triangle(index);
-            }
-          };
+
           if (object_small_[b]) {
             // a small object's triangles are all in its list, none in the
             // grid: tested four at a time, box and crossing
@@ -937,25 +941,29 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
               }
             }
           } else {
-            for (int index : large_triangles_) test(index);
+            const ObjectTriangles& hashed = object_triangles_[b];
+            for (int index : hashed.large) {
+              const TriangleEntry& entry = triangles_[index];
+              if (BoxesOverlap(entry.lo, entry.hi, segment_lo, segment_hi)) test_triangle(index);
+            }
             // the boxes of the buckets of the segment's cells, four at a
             // time; a triangle covering several of those cells is met in
             // each: tested once per query
             const std::uint32_t query = ++scratch.query;
-            const Eigen::Vector3i lo = triangle_hash_.CellOf(segment_lo);
-            const Eigen::Vector3i hi = triangle_hash_.CellOf(segment_hi);
+            const Eigen::Vector3i lo = hashed.hash.CellOf(segment_lo);
+            const Eigen::Vector3i hi = hashed.hash.CellOf(segment_hi);
             const Box4 segment_box(segment_lo, segment_hi);
-            const std::span<const int> items = triangle_hash_.items();
+            const std::span<const int> items = hashed.hash.items();
             for (int k = lo.z(); k <= hi.z(); ++k) {
               for (int j = lo.y(); j <= hi.y(); ++j) {
                 for (int i = lo.x(); i <= hi.x(); ++i) {
-                  const SpatialHash::Range range = triangle_hash_.Find({i, j, k}, b + 1);
+                  const SpatialHash::Range range = hashed.hash.Find({i, j, k});
                   for (int e = range.begin; e < range.end; e += 4) {
-                    for (unsigned bits = segment_box.Overlapping(bucket_boxes_.lo, bucket_boxes_.hi,
+                    for (unsigned bits = segment_box.Overlapping(hashed.boxes.lo, hashed.boxes.hi,
                                                                  e, range.end);
                          bits != 0; bits &= bits - 1) {
                       const int index = items[e + std::countr_zero(bits)];
-                      if (triangles_[index].object != b || scratch.seen[index] == query) continue;
+                      if (scratch.seen[index] == query) continue;
                       scratch.seen[index] = query;
                       test_triangle(index);
                     }
@@ -1141,9 +1149,7 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
   const Triangles& surface = objects[b].mesh->surface();
   double best = std::numeric_limits<double>::infinity();
   auto test = [&](int index) {
-    const TriangleEntry& entry = triangles_[index];
-    if (entry.object != b) return;
-    const int f = entry.face;
+    const int f = triangles_[index].face;
     if (exclude >= 0 &&
         (surface(f, 0) == exclude || surface(f, 1) == exclude || surface(f, 2) == exclude)) {
       return;
@@ -1161,12 +1167,13 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
     for (int entry = object_entry_begin_[b]; entry < object_entry_end_[b]; ++entry) test(entry);
     return std::isfinite(best);
   }
-  for (int entry : large_triangles_) test(entry);
+  const ObjectTriangles& hashed = object_triangles_[b];
+  for (int entry : hashed.large) test(entry);
   // search cubes of cells of growing radius k around p's cell: every point
   // within k cells of p lies in the cube, so the search may stop as soon as
   // the best distance is at most k cell sizes
   const double cell_size = cell_size_;
-  const Eigen::Vector3i center = triangle_hash_.CellOf(p);
+  const Eigen::Vector3i center = hashed.hash.CellOf(p);
   const Eigen::Vector3i& box_lo = object_cell_lo_[b];  // B's bounding box in cells
   const Eigen::Vector3i& box_hi = object_cell_hi_[b];
   // with cells much smaller than the distance to the surface the shells
@@ -1195,16 +1202,13 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
                                     .cwiseMax(p - cell_lo - Eigen::Vector3d::Constant(cell_size_))
                                     .cwiseMax(0.0);
           if (gap.squaredNorm() > best) continue;
-          triangle_hash_.ForEach(
-              cell,
-              [&](int index) {
-                const TriangleGeometry& triangle = triangle_geometry_[index];
-                if ((cell.array() >= triangle.cell_lo.array()).all() &&
-                    (cell.array() <= triangle.cell_hi.array()).all()) {
-                  test(index);
-                }
-              },
-              b + 1);
+          hashed.hash.ForEach(cell, [&](int index) {
+            const TriangleGeometry& triangle = triangle_geometry_[index];
+            if ((cell.array() >= triangle.cell_lo.array()).all() &&
+                (cell.array() <= triangle.cell_hi.array()).all()) {
+              test(index);
+            }
+          });
         }
       }
     }
@@ -1229,14 +1233,12 @@ void PenetrationSolver::ComputeClosest(std::span<const CollisionObject> objects,
     layer_.assign(num_hits, -1);
   }
   const DepthSource source = all ? DepthSource::kClosest : DepthSource::kFallback;
-  const int num_entries = static_cast<int>(triangles_.size());
   frontier_.clear();  // (free after stage 4): the points without a value
   for (int h = 0; h < num_hits; ++h) {
     if (layer_[h] >= 0) continue;
     frontier_.push_back(h);
     HashRemainingTriangles(objects, hits_[h].penetrated);
   }
-  if (static_cast<int>(triangles_.size()) > num_entries) BuildTriangleHash();
   const int num_pending = static_cast<int>(frontier_.size());
   ParallelFor(
       ThreadsFor(options_.num_threads, num_pending, 16), 0, num_pending,

@@ -210,12 +210,12 @@ class PenetrationSolver {
   // current position.
   void MakeTriangle(std::span<const CollisionObject> objects, int object, int f,
                     TriangleEntry& entry, TriangleGeometry& geometry) const;
-  // Entry `index` into the triangle hash, or the list of triangles too
-  // large to hash.
+  // Entry `index` into its object's triangle hash, or the object's list of
+  // triangles too large to hash.
   void InsertTriangle(int index);
-  // Sorts the triangle hash by bucket (after inserts) and lays out
-  // bucket_boxes_ in its order.
-  void BuildTriangleHash();
+  // Sorts an object's triangle hash by bucket (after inserts) and lays out
+  // its boxes in that order.
+  void BuildTriangleHash(int object);
   void FindCrossings(std::span<const CollisionObject> objects);
   void ComputeBorderPoints(std::span<const CollisionObject> objects);
   void Propagate(std::span<const CollisionObject> objects);
@@ -264,8 +264,7 @@ class PenetrationSolver {
   std::vector<Hit> hits_;                      // sorted by (vertex, penetrated)
   std::vector<int> hit_offset_;                // #global vertices + 1
 
-  SpatialHash triangle_hash_;             // stage 2 and closest features: surface triangles
-  std::vector<TriangleEntry> triangles_;  // the entries, by object
+  std::vector<TriangleEntry> triangles_;             // the entries, by object
   std::vector<TriangleGeometry> triangle_geometry_;  // per entry
   // small objects' entries by coordinate, in entry order (stage 2 tests
   // four at a time), each array padded by kSimdPadding NaN
@@ -277,15 +276,24 @@ class PenetrationSolver {
   };
   SmallTriangles small_;
   std::vector<int> object_small_begin_;  // #objects: its first entry in small_
-  // the boxes of the hashed entries in the triangle hash's bucket order
-  // (hash entry e: triangle entry triangle_hash_.items()[e]), by coordinate
-  // and padded like small_: a stage-2 query tests a bucket's boxes four at
-  // a time
+  // per penetrated object that is not small, for stage 2 and closest
+  // features: its triangle entries in a hash of its own, which the thread
+  // that makes the object's entries builds (a shared table would be filled
+  // by one thread: on two cubes that was a tenth of the solve, serial); the
+  // entries' boxes in the hash's bucket order (hash entry e: triangle entry
+  // hash.items()[e]), by coordinate and padded like small_, so that a query
+  // tests a bucket's boxes four at a time; the entries too large to hash.
+  // On cache lines of their own, like ThreadScratch: threads fill
+  // neighbouring objects' tables at once.
   struct BucketBoxes {
     std::vector<double> lo[3], hi[3];
   };
-  BucketBoxes bucket_boxes_;
-  std::vector<int> large_triangles_;  // entries too large to hash
+  struct alignas(64) ObjectTriangles {
+    SpatialHash hash;
+    BucketBoxes boxes;
+    std::vector<int> large;
+  };
+  std::vector<ObjectTriangles> object_triangles_;  // #objects
   std::vector<char> object_penetrated_;
   std::vector<int> penetrated_list_;            // the objects with object_penetrated_
   std::vector<std::vector<int>> object_faces_;  // per penetrated object: its faces in the entries
