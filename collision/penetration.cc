@@ -452,10 +452,17 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
         Eigen::Vector3d union_lo = Eigen::Vector3d::Constant(inf);
         Eigen::Vector3d union_hi = Eigen::Vector3d::Constant(-inf);
         const std::vector<int>& order = object_b.mesh->spatial_tet_order();
+        // (a tet whose corners all lie beyond one side of the search box is
+        // outside it: told by the corners' outcodes, no positions read)
+        const std::uint8_t* outcode = vertex_outcode_.data() + vertex_offset_[b];
         for (int n = first; n < last; ++n) {
           const int t = order[n];
           ChunkTet& tet = chunk[chunk_size];
           const auto vertices = object_b.mesh->tets().row(t);
+          if ((outcode[vertices[0]] & outcode[vertices[1]] & outcode[vertices[2]] &
+               outcode[vertices[3]]) != 0) {
+            continue;
+          }
           for (int i = 0; i < 4; ++i) tet.corner[i] = x.row(vertices[i]).transpose();
           InflatedBounds(tet.corner, tet.lo, tet.hi);
           if (!BoxesOverlap(tet.lo, tet.hi, search_lo_[b], search_hi_[b])) continue;
