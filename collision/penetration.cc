@@ -313,14 +313,28 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
   std::sort(sweep_order_.begin(), sweep_order_.end(), [&](int a, int b) {
     return object_lo_[a].x() != object_lo_[b].x() ? object_lo_[a].x() < object_lo_[b].x() : a < b;
   });
+  // the boxes in sweep order by coordinate: a box is tested against the
+  // boxes after it that start before it ends along x, four at a time (in a
+  // pile of 120 spheres, about 50 of them per box)
+  for (int k = 0; k < 3; ++k) {
+    ResizePadded(sweep_lo_[k], num_objects);
+    ResizePadded(sweep_hi_[k], num_objects);
+    for (int i = 0; i < num_objects; ++i) {
+      sweep_lo_[k][i] = object_lo_[sweep_order_[i]][k];
+      sweep_hi_[k][i] = object_hi_[sweep_order_[i]][k];
+    }
+  }
   for (int i = 0; i < num_objects; ++i) {
     const int a = sweep_order_[i];
     if (objects[a].self_collision) pairs_.push_back({a, a});
-    for (int j = i + 1; j < num_objects && object_lo_[sweep_order_[j]].x() <= object_hi_[a].x();
-         ++j) {
-      const int b = sweep_order_[j];
-      if (objects[a].rigid && objects[b].rigid) continue;  // the rigid engine's pair
-      if (BoxesOverlap(object_lo_[a], object_hi_[a], object_lo_[b], object_hi_[b])) {
+    int end = i + 1;
+    while (end < num_objects && sweep_lo_[0][end] <= object_hi_[a].x()) ++end;
+    const Box4 box(object_lo_[a], object_hi_[a]);
+    for (int j = i + 1; j < end; j += 4) {
+      for (unsigned bits = box.Overlapping(sweep_lo_, sweep_hi_, j, end); bits != 0;
+           bits &= bits - 1) {
+        const int b = sweep_order_[j + std::countr_zero(bits)];
+        if (objects[a].rigid && objects[b].rigid) continue;  // the rigid engine's pair
         pairs_.push_back({a, b});
         pairs_.push_back({b, a});
       }

@@ -245,6 +245,7 @@ class PenetrationSolver {
   std::vector<Eigen::Vector3d> object_lo_, object_hi_;  // #objects
   std::vector<Eigen::Vector3d> search_lo_, search_hi_;  // #objects
   std::vector<int> sweep_order_;                        // #objects, by object_lo_.x
+  std::vector<double> sweep_lo_[3], sweep_hi_[3];       // their boxes in that order (padded)
   std::vector<std::array<int, 2>> pairs_;               // (object, partner), both ways
   struct Partner {
     Eigen::Vector3d lo, hi;  // the overlap of the two objects' boxes
