@@ -14,6 +14,16 @@ namespace tetcosim {
 // tetrahedra is then inside at least one of them despite rounding.
 constexpr double kBarycentricTolerance = 1e-12;
 
+// a . b, summed in Eigen's order ((x + y) + z), in scalar registers. Eigen
+// loads the first two coordinates of each vector as one packet; when a
+// vector was just computed (a cross product), its coordinates were stored
+// one by one, and the packet load waits until both stores have retired (a
+// failed store-to-load forward: measured at a sixth of stage 1's time, in
+// TetCoordinates' determinant).
+inline double Dot3(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+  return (a.x() * b.x() + a.y() * b.y()) + a.z() * b.z();
+}
+
 // Barycentric coordinates in one tetrahedron (a, b, c, d), for many points:
 // p = l0 a + l1 b + l2 c + l3 d with l0 + l1 + l2 + l3 = 1. What depends on
 // the tetrahedron alone is computed once.
@@ -23,7 +33,7 @@ class TetCoordinates {
   TetCoordinates(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c,
                  const Eigen::Vector3d& d)
       : a_(a), e1_(b - a), e2_(c - a), e3_(d - a), e23_(e2_.cross(e3_)) {
-    const double det = e1_.dot(e23_);
+    const double det = Dot3(e1_, e23_);
     degenerate_ = det == 0.0 || !std::isfinite(det);
     inverse_det_ = degenerate_ ? 0.0 : 1.0 / det;
   }
@@ -35,9 +45,9 @@ class TetCoordinates {
   Eigen::Vector4d operator()(const Eigen::Vector3d& p) const {
     const Eigen::Vector3d r = p - a_;
     Eigen::Vector4d l;
-    l[1] = r.dot(e23_) * inverse_det_;
-    l[2] = e1_.dot(r.cross(e3_)) * inverse_det_;
-    l[3] = e1_.dot(e2_.cross(r)) * inverse_det_;
+    l[1] = Dot3(r, e23_) * inverse_det_;
+    l[2] = Dot3(e1_, r.cross(e3_)) * inverse_det_;
+    l[3] = Dot3(e1_, e2_.cross(r)) * inverse_det_;
     l[0] = 1.0 - l[1] - l[2] - l[3];
     return l;
   }
@@ -86,14 +96,14 @@ inline bool SegmentTriangle(const Eigen::Vector3d& q, const Eigen::Vector3d& dir
   // fail the bounds, and is rejected anyway.
   constexpr double kTolerance = kSegmentTriangleTolerance;
   const Eigen::Vector3d h = dir.cross(e2);
-  const double det = e1.dot(h);
+  const double det = Dot3(e1, h);
   const double scale = edge_lengths * dir_length;
   const double inv = 1.0 / det;
   const Eigen::Vector3d s = q - a;
-  u = s.dot(h) * inv;
+  u = Dot3(s, h) * inv;
   const Eigen::Vector3d k = s.cross(e1);
-  v = dir.dot(k) * inv;
-  t = e2.dot(k) * inv;
+  v = Dot3(dir, k) * inv;
+  t = Dot3(e2, k) * inv;
   return (std::abs(det) > kSegmentTriangleParallel * scale) &
          (scale != 0.0) &  // not parallel or degenerate
          (u >= -kTolerance) & (u <= 1.0 + kTolerance) & (v >= -kTolerance) &
