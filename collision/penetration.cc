@@ -605,12 +605,25 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
         }
       },
       Schedule::kDynamic, std::max(1, 256 / kChunkTets));
-  // merge and sort: the order (and so the result) does not depend on threads
-  hits_.clear();
+  // merge, grouped by vertex (a counting sort), each vertex's hits in
+  // (penetrated, tet) order: the order, and so the result, does not depend
+  // on threads (sorting all hits by comparison was serial and took 1.5% of
+  // the 100k scene's solve)
+  hit_offset_.assign(num_vertices + 1, 0);
   for (int i = 0; i < num_threads; ++i) {
-    hits_.insert(hits_.end(), thread_scratch_[i].hits.begin(), thread_scratch_[i].hits.end());
+    for (const Hit& hit : thread_scratch_[i].hits) ++hit_offset_[hit.vertex + 1];
   }
-  std::sort(hits_.begin(), hits_.end());
+  for (int g = 0; g < num_vertices; ++g) hit_offset_[g + 1] += hit_offset_[g];
+  hits_.resize(hit_offset_[num_vertices]);
+  for (int i = 0; i < num_threads; ++i) {
+    for (const Hit& hit : thread_scratch_[i].hits) hits_[hit_offset_[hit.vertex]++] = hit;
+  }
+  // (hit_offset_[g] is now the end of vertex g's hits)
+  for (int g = 0, begin = 0; g < num_vertices; ++g) {
+    const int end = hit_offset_[g];
+    if (end - begin > 1) std::sort(hits_.begin() + begin, hits_.begin() + end);
+    begin = end;
+  }
   // one tetrahedron per (vertex, object): the one the vertex is deepest in
   // (a vertex on a shared face or edge is inside several)
   size_t kept = 0;
