@@ -954,7 +954,6 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
               consider(index, t, u, w);
             }
           };
-
           if (object_small_[b]) {
             // a small object's triangles are all in its list, none in the
             // grid: tested four at a time, box and crossing
