@@ -734,12 +734,17 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
       [&](int i) {
         const int o = penetrated_list_[i];
         const std::vector<int>& faces = object_faces_[o];
+        long num_pairs = 0;  // (cell, triangle) pairs a hashed object's table will hold
         for (int n = 0; n < static_cast<int>(faces.size()); ++n) {
           const int index = object_entry_begin_[o] + n;
           TriangleEntry& entry = triangles_[index];
           TriangleGeometry& geometry = triangle_geometry_[index];
           MakeTriangle(objects, o, faces[n], entry, geometry);
-          if (!object_small_[o]) continue;
+          if (!object_small_[o]) {
+            const long cells = CellCount(geometry.cell_lo, geometry.cell_hi);
+            if (cells <= kMaxTriangleCells) num_pairs += cells;
+            continue;
+          }
           const int s = object_small_begin_[o] + n;  // its boxes and geometry by coordinate
           for (int k = 0; k < 3; ++k) {
             small_.lo[k][s] = entry.lo[k];
@@ -753,12 +758,6 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
         if (!object_small_[o]) {  // (a small one is tested from the list)
           // a table twice the size of the (cell, triangle) pairs: few
           // buckets shared by cells, whose entries a query would test too
-          long num_pairs = 0;
-          for (int index = object_entry_begin_[o]; index < object_entry_end_[o]; ++index) {
-            const long cells =
-                CellCount(triangle_geometry_[index].cell_lo, triangle_geometry_[index].cell_hi);
-            if (cells <= kMaxTriangleCells) num_pairs += cells;
-          }
           object_triangles_[o].hash.Reset(cell_size_, static_cast<int>(num_pairs));
           object_triangles_[o].large.clear();
           for (int index = object_entry_begin_[o]; index < object_entry_end_[o]; ++index) {
