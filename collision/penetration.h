@@ -230,7 +230,7 @@ class PenetrationSolver {
                            const Eigen::Vector3d& p, int exclude, Eigen::Vector3d& closest) const;
 
   PenetrationOptions options_;
-  double cell_size_ = 1.0;  // of both hashes, metres
+  double cell_size_ = 1.0;  // of every hash (vertices, each object's triangles), metres
 
   // per object, fixed while the object set does not change
   std::vector<int> vertex_offset_;  // #objects + 1: global vertex index of each object's first
