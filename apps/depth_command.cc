@@ -94,7 +94,6 @@ void RunDepth(const DepthOptions& options) {
                         {"inside", timings.inside * 1e3},
                         {"surfaces", timings.surfaces * 1e3},
                         {"intersect", timings.intersect * 1e3},
-                        {"border", timings.border * 1e3},
                         {"propagate", timings.propagate * 1e3},
                         {"closest", timings.closest * 1e3}}}};
     std::printf("%s\n", out.dump(2).c_str());

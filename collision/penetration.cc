@@ -256,7 +256,6 @@ const std::vector<PenetrationResult>& PenetrationSolver::Solve(
   FindCollidingPoints(objects);
   HashSurfaces(objects, /*full=*/options_.method == DepthMethod::kClosest);
   if (options_.method == DepthMethod::kConsistent) {
-    FindCrossings(objects);
     ComputeBorderPoints(objects);
     Propagate(objects);
     if (options_.fallback) ComputeClosest(objects, /*all=*/false);
@@ -729,10 +728,12 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
   }
   normal_stamp_.resize(num_objects);
   object_triangles_.resize(num_objects);
+  object_builder_.resize(num_objects);
   ParallelFor(
       threads, 0, num_penetrated,
       [&](int i) {
         const int o = penetrated_list_[i];
+        object_builder_[o] = omp_get_thread_num();
         const std::vector<int>& faces = object_faces_[o];
         long num_pairs = 0;  // (cell, triangle) pairs a hashed object's table will hold
         for (int n = 0; n < static_cast<int>(faces.size()); ++n) {
@@ -874,22 +875,21 @@ void PenetrationSolver::BuildTriangleHash(int object) {
   }
 }
 
-// stage 2: for every colliding point p and neighbour q outside B, the
-// crossing of the edge q -> p with B's surface nearest q
-void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) {
+// stages 2 and 3, point by point: for every colliding point p and
+// neighbour q outside B, the crossing of the edge q -> p with B's surface
+// nearest q and B's smooth normal there (stage 2); from the point's
+// crossings, its depth and direction (stage 3: a border point). One pass:
+// a point's crossings are used as soon as they are found, never stored.
+void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> objects) {
   Clock::time_point start = Clock::now();
   const int num_hits = static_cast<int>(hits_.size());
   const int num_threads = std::max(1, options_.num_threads);
-  crossing_offset_.resize(num_hits + 1);
-  crossing_offset_[0] = 0;
-  for (int h = 0; h < num_hits; ++h) {
-    int g = hits_[h].vertex;
-    int a = vertex_object_[g];
-    int v = g - vertex_offset_[a];
-    const auto& offsets = objects[a].mesh->adjacency_offsets();
-    crossing_offset_[h + 1] = crossing_offset_[h] + offsets[v + 1] - offsets[v];
-  }
-  crossings_.resize(crossing_offset_[num_hits]);
+  depth_.resize(num_hits);
+  direction_.resize(num_hits);
+  source_.resize(num_hits);
+  layer_.assign(num_hits, -1);
+  // a crossing closer than this to p means p is on the surface: depth 0
+  const double on_surface = 1e-9 * cell_size_;
   // per thread: the query in which each triangle entry was last tested
   if (static_cast<int>(thread_scratch_.size()) < num_threads) thread_scratch_.resize(num_threads);
   for (int i = 0; i < num_threads; ++i) {
@@ -897,186 +897,177 @@ void PenetrationSolver::FindCrossings(std::span<const CollisionObject> objects) 
     thread_scratch_[i].query = 0;
     thread_scratch_[i].edges = 0;
   }
-  ParallelFor(
-      ThreadsFor(num_threads, num_hits, 16), 0, num_hits,
-      [&](int h) {
-        ThreadScratch& scratch = thread_scratch_[omp_get_thread_num()];
-        const Hit& hit = hits_[h];
-        const int a = vertex_object_[hit.vertex];
-        const int b = hit.penetrated;
-        const int v = hit.vertex - vertex_offset_[a];
-        const TetMesh& mesh_a = *objects[a].mesh;
-        const Triangles& surface_b = objects[b].mesh->surface();
-        const Eigen::Vector3d p = Position(hit.vertex);
-        int slot = crossing_offset_[h];
-        for (int n = mesh_a.adjacency_offsets()[v]; n < mesh_a.adjacency_offsets()[v + 1];
-             ++n, ++slot) {
-          Crossing& crossing = crossings_[slot];
-          crossing.valid = false;
-          crossing.edge = false;
-          const int q_local = mesh_a.adjacency()[n];
-          const int q_global = vertex_offset_[a] + q_local;
-          if (FindHit(q_global, b) >= 0) continue;  // q is inside B too: not an intersection edge
-          crossing.edge = true;
-          ++scratch.edges;
-          const Eigen::Vector3d q = Position(q_global);
-          const Eigen::Vector3d dir = p - q;
-          const double dir_length = dir.norm();
-          double best_t = std::numeric_limits<double>::infinity();
-          int best_entry = -1;
-          double best_u = 0.0, best_v = 0.0;
-          const Eigen::Vector3d ends[2] = {q, p};
-          Eigen::Vector3d segment_lo, segment_hi;
-          InflatedBounds(ends, segment_lo, segment_hi);
-          // the crossing with entry `index` at q + t dir, (u, w) in the
-          // triangle: the nearest to q is kept, ties broken by entry for
-          // determinism
-          auto consider = [&](int index, double t, double u, double w) {
-            if (a == b) {  // self-collision: the edge's own triangles do not count
-              for (int k = 0; k < 3; ++k) {
-                const int c = surface_b(triangles_[index].face, k);
-                if (c == v || c == q_local) return;
-              }
-            }
-            if (t < best_t || (t == best_t && index < best_entry)) {
-              best_t = t;
-              best_entry = index;
-              best_u = u;
-              best_v = w;
-            }
-          };
-          auto test_triangle = [&](int index) {
-            const TriangleGeometry& triangle = triangle_geometry_[index];
-            double t, u, w;
-            if (SegmentTriangle(q, dir, dir_length, triangle.corner[0], triangle.edge[0],
-                                triangle.edge[1], triangle.edge_lengths, t, u, w)) {
-              consider(index, t, u, w);
-            }
-          };
-          if (object_small_[b]) {
-            // a small object's triangles are all in its list, none in the
-            // grid: tested four at a time, box and crossing
-            const int begin = object_entry_begin_[b];
-            const int first = object_small_begin_[b];
-            const int end = first + object_entry_end_[b] - begin;
-            const Box4 segment_box(segment_lo, segment_hi);
-            for (int i = first; i < end; i += 4) {
-              const unsigned overlapping = segment_box.Overlapping(small_.lo, small_.hi, i, end);
-              if (overlapping == 0) continue;
-              Double4 t, u, w;
-              const unsigned crossed =
-                  overlapping & SegmentTriangles4(q, dir, dir_length, small_.corner, small_.edge0,
-                                                  small_.edge1, small_.edge_lengths, i, t, u, w);
-              for (unsigned bits = crossed; bits != 0; bits &= bits - 1) {
-                const int lane = std::countr_zero(bits);
-                consider(begin + i - first + lane, t[lane], u[lane], w[lane]);
-              }
-            }
-          } else {
-            const ObjectTriangles& hashed = object_triangles_[b];
-            for (int index : hashed.large) {
-              const TriangleEntry& entry = triangles_[index];
-              if (BoxesOverlap(entry.lo, entry.hi, segment_lo, segment_hi)) test_triangle(index);
-            }
-            // the boxes of the buckets of the segment's cells, four at a
-            // time; a triangle covering several of those cells is met in
-            // each: tested once per query
-            const std::uint32_t query = ++scratch.query;
-            const Eigen::Vector3i lo = hashed.hash.CellOf(segment_lo);
-            const Eigen::Vector3i hi = hashed.hash.CellOf(segment_hi);
-            const Box4 segment_box(segment_lo, segment_hi);
-            const std::span<const int> items = hashed.hash.items();
-            for (int k = lo.z(); k <= hi.z(); ++k) {
-              for (int j = lo.y(); j <= hi.y(); ++j) {
-                for (int i = lo.x(); i <= hi.x(); ++i) {
-                  const SpatialHash::Range range = hashed.hash.Find({i, j, k});
-                  for (int e = range.begin; e < range.end; e += 4) {
-                    for (unsigned bits = segment_box.Overlapping(hashed.boxes.lo, hashed.boxes.hi,
-                                                                 e, range.end);
-                         bits != 0; bits &= bits - 1) {
-                      const int index = items[e + std::countr_zero(bits)];
-                      if (scratch.seen[index] == query) continue;
-                      scratch.seen[index] = query;
-                      test_triangle(index);
-                    }
-                  }
+  auto find = [&](int h) {
+    ThreadScratch& scratch = thread_scratch_[omp_get_thread_num()];
+    const Hit& hit = hits_[h];
+    const int a = vertex_object_[hit.vertex];
+    const int b = hit.penetrated;
+    const int v = hit.vertex - vertex_offset_[a];
+    const TetMesh& mesh_a = *objects[a].mesh;
+    const Triangles& surface_b = objects[b].mesh->surface();
+    const Eigen::Vector3d p = Position(hit.vertex);
+    // stage 3's sums over the crossings, and the nearest crossing's normal
+    double weight_sum = 0.0;
+    double depth_sum = 0.0;
+    Eigen::Vector3d normal_sum = Eigen::Vector3d::Zero();
+    Eigen::Vector3d nearest_normal = Eigen::Vector3d::Zero();
+    double nearest_distance = std::numeric_limits<double>::infinity();
+    bool any_crossing = false;
+    for (int n = mesh_a.adjacency_offsets()[v]; n < mesh_a.adjacency_offsets()[v + 1]; ++n) {
+      const int q_local = mesh_a.adjacency()[n];
+      const int q_global = vertex_offset_[a] + q_local;
+      if (FindHit(q_global, b) >= 0) continue;  // q is inside B too: not an intersection edge
+      ++scratch.edges;
+      const Eigen::Vector3d q = Position(q_global);
+      const Eigen::Vector3d dir = p - q;
+      const double dir_length = dir.norm();
+      double best_t = std::numeric_limits<double>::infinity();
+      int best_entry = -1;
+      double best_u = 0.0, best_v = 0.0;
+      const Eigen::Vector3d ends[2] = {q, p};
+      Eigen::Vector3d segment_lo, segment_hi;
+      InflatedBounds(ends, segment_lo, segment_hi);
+      // the crossing with entry `index` at q + t dir, (u, w) in the
+      // triangle: the nearest to q is kept, ties broken by entry for
+      // determinism
+      auto consider = [&](int index, double t, double u, double w) {
+        if (a == b) {  // self-collision: the edge's own triangles do not count
+          for (int k = 0; k < 3; ++k) {
+            const int c = surface_b(triangles_[index].face, k);
+            if (c == v || c == q_local) return;
+          }
+        }
+        if (t < best_t || (t == best_t && index < best_entry)) {
+          best_t = t;
+          best_entry = index;
+          best_u = u;
+          best_v = w;
+        }
+      };
+      auto test_triangle = [&](int index) {
+        const TriangleGeometry& triangle = triangle_geometry_[index];
+        double t, u, w;
+        if (SegmentTriangle(q, dir, dir_length, triangle.corner[0], triangle.edge[0],
+                            triangle.edge[1], triangle.edge_lengths, t, u, w)) {
+          consider(index, t, u, w);
+        }
+      };
+      if (object_small_[b]) {
+        // a small object's triangles are all in its list, none in the
+        // grid: tested four at a time, box and crossing
+        const int begin = object_entry_begin_[b];
+        const int first = object_small_begin_[b];
+        const int end = first + object_entry_end_[b] - begin;
+        const Box4 segment_box(segment_lo, segment_hi);
+        for (int i = first; i < end; i += 4) {
+          const unsigned overlapping = segment_box.Overlapping(small_.lo, small_.hi, i, end);
+          if (overlapping == 0) continue;
+          Double4 t, u, w;
+          const unsigned crossed =
+              overlapping & SegmentTriangles4(q, dir, dir_length, small_.corner, small_.edge0,
+                                              small_.edge1, small_.edge_lengths, i, t, u, w);
+          for (unsigned bits = crossed; bits != 0; bits &= bits - 1) {
+            const int lane = std::countr_zero(bits);
+            consider(begin + i - first + lane, t[lane], u[lane], w[lane]);
+          }
+        }
+      } else {
+        const ObjectTriangles& hashed = object_triangles_[b];
+        for (int index : hashed.large) {
+          const TriangleEntry& entry = triangles_[index];
+          if (BoxesOverlap(entry.lo, entry.hi, segment_lo, segment_hi)) test_triangle(index);
+        }
+        // the boxes of the buckets of the segment's cells, four at a
+        // time; a triangle covering several of those cells is met in
+        // each: tested once per query
+        const std::uint32_t query = ++scratch.query;
+        const Eigen::Vector3i lo = hashed.hash.CellOf(segment_lo);
+        const Eigen::Vector3i hi = hashed.hash.CellOf(segment_hi);
+        const Box4 segment_box(segment_lo, segment_hi);
+        const std::span<const int> items = hashed.hash.items();
+        for (int k = lo.z(); k <= hi.z(); ++k) {
+          for (int j = lo.y(); j <= hi.y(); ++j) {
+            for (int i = lo.x(); i <= hi.x(); ++i) {
+              const SpatialHash::Range range = hashed.hash.Find({i, j, k});
+              for (int e = range.begin; e < range.end; e += 4) {
+                for (unsigned bits =
+                         segment_box.Overlapping(hashed.boxes.lo, hashed.boxes.hi, e, range.end);
+                     bits != 0; bits &= bits - 1) {
+                  const int index = items[e + std::countr_zero(bits)];
+                  if (scratch.seen[index] == query) continue;
+                  scratch.seen[index] = query;
+                  test_triangle(index);
                 }
               }
             }
           }
-          if (best_entry < 0) continue;
-          const int f = triangles_[best_entry].face;
-          crossing.point = q + best_t * dir;
-          // smooth normal: barycentric interpolation of the vertex normals
-          Eigen::Vector3d normal =
-              (1.0 - best_u - best_v) * normals_[b].row(surface_b(f, 0)).transpose() +
-              best_u * normals_[b].row(surface_b(f, 1)).transpose() +
-              best_v * normals_[b].row(surface_b(f, 2)).transpose();
-          double length = normal.norm();
-          if (length < 1e-12) {  // opposite vertex normals cancel: use the face normal
-            const TriangleGeometry& triangle = triangle_geometry_[best_entry];
-            normal = triangle.edge[0].cross(triangle.edge[1]);
-            length = normal.norm();
-            if (length == 0.0) continue;
-          }
-          crossing.normal = normal / length;
-          crossing.valid = true;
         }
-      },
-      Schedule::kDynamic, 16);
+      }
+      if (best_entry < 0) continue;
+      const int f = triangles_[best_entry].face;
+      const Eigen::Vector3d crossing = q + best_t * dir;
+      // smooth normal: barycentric interpolation of the vertex normals
+      Eigen::Vector3d normal =
+          (1.0 - best_u - best_v) * normals_[b].row(surface_b(f, 0)).transpose() +
+          best_u * normals_[b].row(surface_b(f, 1)).transpose() +
+          best_v * normals_[b].row(surface_b(f, 2)).transpose();
+      double length = normal.norm();
+      if (length < 1e-12) {  // opposite vertex normals cancel: use the face normal
+        const TriangleGeometry& triangle = triangle_geometry_[best_entry];
+        normal = triangle.edge[0].cross(triangle.edge[1]);
+        length = normal.norm();
+        if (length == 0.0) continue;
+      }
+      normal /= length;
+      // stage 3: w_i = 1 / |x_i - p|^2 (method.md)
+      const Eigen::Vector3d to_crossing = crossing - p;
+      const double distance = to_crossing.norm();
+      if (distance < nearest_distance) {
+        nearest_distance = distance;
+        nearest_normal = normal;
+      }
+      any_crossing = true;
+      if (distance < on_surface) continue;
+      const double w = 1.0 / (distance * distance);
+      weight_sum += w;
+      depth_sum += w * to_crossing.dot(normal);
+      normal_sum += w * normal;
+    }
+    if (!any_crossing) return;  // not a border point (or no crossing found)
+    if (nearest_distance < on_surface || weight_sum == 0.0) {
+      depth_[h] = 0.0;
+      direction_[h] = nearest_normal;
+    } else {
+      depth_[h] = std::max(0.0, depth_sum / weight_sum);
+      const double normal_length = normal_sum.norm();
+      direction_[h] = normal_length > 1e-12 * weight_sum
+                          ? Eigen::Vector3d(normal_sum / normal_length)
+                          : nearest_normal;
+    }
+    source_[h] = DepthSource::kBorder;
+    layer_[h] = 0;
+  };
+  const int threads = ThreadsFor(num_threads, num_hits, 16);
+  if (threads == 1) {
+    for (int h = 0; h < num_hits; ++h) find(h);
+  } else {
+    // each thread starts with the hits into the objects whose triangles it
+    // made (HashSurfaces): their hash, boxes, geometry and normals are in
+    // its core's cache
+    GroupByKey(
+        threads,
+        [&](auto emit) {
+          for (int h = 0; h < num_hits; ++h)
+            emit(object_builder_[hits_[h].penetrated] % threads, h);
+        },
+        hit_group_offset_, hit_order_);
+    ParallelForGroups(
+        threads, hit_group_offset_, [&](int i) { find(hit_order_[i]); }, 16);
+  }
   int edges = 0;
   for (int i = 0; i < num_threads; ++i) edges += thread_scratch_[i].edges;
   stats_.intersection_edges = edges;
   timings_.intersect += SecondsSince(start);
-}
-
-// stage 3: depth and direction of border points from their crossings
-void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> /*objects*/) {
-  Clock::time_point start = Clock::now();
-  const int num_hits = static_cast<int>(hits_.size());
-  depth_.resize(num_hits);
-  direction_.resize(num_hits);
-  source_.resize(num_hits);
-  layer_.assign(num_hits, -1);
-  // a crossing closer than this to p means p is on the surface: depth 0
-  const double on_surface = 1e-9 * cell_size_;
-  ParallelFor(ThreadsFor(options_.num_threads, num_hits, 128), 0, num_hits, [&](int h) {
-    const Eigen::Vector3d p = Position(hits_[h].vertex);
-    double weight_sum = 0.0;
-    double depth_sum = 0.0;
-    Eigen::Vector3d normal_sum = Eigen::Vector3d::Zero();
-    int nearest = -1;
-    double nearest_distance = std::numeric_limits<double>::infinity();
-    for (int s = crossing_offset_[h]; s < crossing_offset_[h + 1]; ++s) {
-      const Crossing& crossing = crossings_[s];
-      if (!crossing.valid) continue;
-      Eigen::Vector3d to_crossing = crossing.point - p;
-      double distance = to_crossing.norm();
-      if (distance < nearest_distance) {
-        nearest_distance = distance;
-        nearest = s;
-      }
-      if (distance < on_surface) continue;
-      // w_i = 1 / |x_i - p|^2 (method.md, stage 3)
-      double w = 1.0 / (distance * distance);
-      weight_sum += w;
-      depth_sum += w * to_crossing.dot(crossing.normal);
-      normal_sum += w * crossing.normal;
-    }
-    if (nearest < 0) return;  // not a border point (or no crossing found)
-    if (nearest_distance < on_surface || weight_sum == 0.0) {
-      depth_[h] = 0.0;
-      direction_[h] = crossings_[nearest].normal;
-    } else {
-      depth_[h] = std::max(0.0, depth_sum / weight_sum);
-      double length = normal_sum.norm();
-      direction_[h] = length > 1e-12 * weight_sum ? Eigen::Vector3d(normal_sum / length)
-                                                  : crossings_[nearest].normal;
-    }
-    source_[h] = DepthSource::kBorder;
-    layer_[h] = 0;
-  });
-  timings_.border += SecondsSince(start);
 }
 
 // stage 4: propagation to inner points, each layer from earlier layers only

@@ -90,8 +90,8 @@ struct PenetrationTimings {
   double hash = 0.0;       // stage 1a: broad phase and hashing vertices
   double inside = 0.0;     // stage 1b: vertex-in-tetrahedron tests
   double surfaces = 0.0;   // penetrated objects' vertex normals and triangle hash
-  double intersect = 0.0;  // stage 2: intersection edges against surfaces
-  double border = 0.0;     // stage 3: border point depth and direction
+  double intersect = 0.0;  // stages 2 and 3: intersection edges against surfaces, and
+                           // border points' depth and direction from their crossings
   double propagate = 0.0;  // stage 4: propagation
   double closest = 0.0;    // closest features (fallback or closest method)
   double total = 0.0;
@@ -153,13 +153,6 @@ class PenetrationSolver {
     std::vector<int> vertex;      // global vertex index
     std::vector<int> object;      // its object
   };
-  // a crossing of an intersection edge with B's surface
-  struct Crossing {
-    Eigen::Vector3d point;
-    Eigen::Vector3d normal;
-    bool valid;  // a crossing was found
-    bool edge;   // the slot's edge is an intersection edge
-  };
   // a surface triangle in the triangle hash (or in its object's list): what
   // a query tests first, and its geometry (kept apart, read only for the few
   // triangles whose box a query overlaps)
@@ -216,7 +209,7 @@ class PenetrationSolver {
   // Sorts an object's triangle hash by bucket (after inserts) and lays out
   // its boxes in that order.
   void BuildTriangleHash(int object);
-  void FindCrossings(std::span<const CollisionObject> objects);
+  // stages 2 and 3: intersection edges, their crossings, border points
   void ComputeBorderPoints(std::span<const CollisionObject> objects);
   void Propagate(std::span<const CollisionObject> objects);
   void ComputeClosest(std::span<const CollisionObject> objects, bool all);
@@ -295,6 +288,7 @@ class PenetrationSolver {
     std::vector<int> large;
   };
   std::vector<ObjectTriangles> object_triangles_;  // #objects
+  std::vector<int> object_builder_;                // #objects: the thread that made its entries
   std::vector<char> object_penetrated_;
   std::vector<int> penetrated_list_;            // the objects with object_penetrated_
   std::vector<std::vector<int>> object_faces_;  // per penetrated object: its faces in the entries
@@ -305,8 +299,9 @@ class PenetrationSolver {
                                                             // features (HashRemainingTriangles)
   std::vector<Eigen::Vector3i> object_cell_lo_, object_cell_hi_;  // #objects: bounding box in cells
 
-  std::vector<int> crossing_offset_;  // #hits + 1: slots for the hit's neighbours
-  std::vector<Crossing> crossings_;
+  // stage 2 on several threads: the hits grouped by the thread that made
+  // their penetrated object's entries, and the groups' offsets
+  std::vector<int> hit_order_, hit_group_offset_;
 
   // per hit: value and state
   std::vector<double> depth_;
