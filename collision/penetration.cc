@@ -896,6 +896,7 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
     thread_scratch_[i].seen.assign(triangles_.size(), 0);
     thread_scratch_[i].query = 0;
     thread_scratch_[i].edges = 0;
+    thread_scratch_[i].candidates.clear();
   }
   auto find = [&](int h) {
     ThreadScratch& scratch = thread_scratch_[omp_get_thread_num()];
@@ -913,10 +914,18 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
     Eigen::Vector3d nearest_normal = Eigen::Vector3d::Zero();
     double nearest_distance = std::numeric_limits<double>::infinity();
     bool any_crossing = false;
+    // p's neighbours inside B: if p is a border point, the candidates for
+    // the first propagation layer (those that are not border points too)
+    std::vector<int>& candidates = scratch.candidates;
+    const size_t num_listed = candidates.size();
     for (int n = mesh_a.adjacency_offsets()[v]; n < mesh_a.adjacency_offsets()[v + 1]; ++n) {
       const int q_local = mesh_a.adjacency()[n];
       const int q_global = vertex_offset_[a] + q_local;
-      if (FindHit(q_global, b) >= 0) continue;  // q is inside B too: not an intersection edge
+      const int q_hit = FindHit(q_global, b);
+      if (q_hit >= 0) {  // q is inside B too: not an intersection edge
+        candidates.push_back(q_hit);
+        continue;
+      }
       ++scratch.edges;
       const Eigen::Vector3d q = Position(q_global);
       const Eigen::Vector3d dir = p - q;
@@ -1033,7 +1042,10 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
       depth_sum += w * to_crossing.dot(normal);
       normal_sum += w * normal;
     }
-    if (!any_crossing) return;  // not a border point (or no crossing found)
+    if (!any_crossing) {  // not a border point (or no crossing found)
+      candidates.resize(num_listed);
+      return;
+    }
     if (nearest_distance < on_surface || weight_sum == 0.0) {
       depth_[h] = 0.0;
       direction_[h] = nearest_normal;
@@ -1073,7 +1085,6 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
 // stage 4: propagation to inner points, each layer from earlier layers only
 void PenetrationSolver::Propagate(std::span<const CollisionObject> objects) {
   Clock::time_point start = Clock::now();
-  const int num_hits = static_cast<int>(hits_.size());
   const int num_threads = std::max(1, options_.num_threads);
   constexpr int kInNextLayer = -2;
   if (static_cast<int>(thread_scratch_.size()) < num_threads) thread_scratch_.resize(num_threads);
@@ -1085,17 +1096,10 @@ void PenetrationSolver::Propagate(std::span<const CollisionObject> objects) {
     layer_[h] = kInNextLayer;
     next_frontier_.push_back(h);
   };
+  // the first layer: the neighbours of border points that stage 2 listed
   next_frontier_.clear();
-  for (int h = 0; h < num_hits; ++h) {
-    if (layer_[h] != 0) continue;
-    const int g = hits_[h].vertex;
-    const int a = vertex_object_[g];
-    const int v = g - vertex_offset_[a];
-    const TetMesh& mesh = *objects[a].mesh;
-    for (int n = mesh.adjacency_offsets()[v]; n < mesh.adjacency_offsets()[v + 1]; ++n) {
-      const int neighbour = FindHit(vertex_offset_[a] + mesh.adjacency()[n], hits_[h].penetrated);
-      if (neighbour >= 0) add_to_next_layer(neighbour);
-    }
+  for (int i = 0; i < num_threads; ++i) {
+    for (int h : thread_scratch_[i].candidates) add_to_next_layer(h);
   }
   const double coincident = 1e-9 * cell_size_;
   int layer = 0;

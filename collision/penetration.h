@@ -182,8 +182,8 @@ class PenetrationSolver {
                                       // in which it was last tested
     std::uint32_t query = 0;
     int edges = 0;                // stage 2: intersection edges met
-    std::vector<int> candidates;  // stage 4: points next to the layer's
-                                  // points, for the next layer
+    std::vector<int> candidates;  // stage 4: points next to the layer's points,
+                                  // for the next layer (the first: listed in stage 2)
   };
 
   void Prepare(std::span<const CollisionObject> objects);
