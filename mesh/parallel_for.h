@@ -37,8 +37,8 @@ void ParallelFor(int num_threads, int begin, int end, const Body& body,
 
 // body(i) for every i in [offsets[0], offsets[groups]), on num_threads
 // OpenMP threads, where group g is [offsets[g], offsets[g + 1]): thread t
-// first runs the items of group t (if t < groups), `chunk` at a time, then
-// helps with the other groups' remaining items, next group first. For items
+// first runs the items of group t mod groups, `chunk` at a time, then helps
+// with the other groups' remaining items, next group first. For items
 // whose data thread t of an earlier loop wrote (then it is in that core's
 // cache, and reading it from the other core costs more than the item's
 // work). Any item may still run on any thread: the iterations must be
