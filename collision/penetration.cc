@@ -898,7 +898,7 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
     thread_scratch_[i].edges = 0;
     thread_scratch_[i].candidates.clear();
   }
-  auto find = [&](int h) {
+  auto resolve = [&](int h) {  // stages 2 and 3 for hit h
     ThreadScratch& scratch = thread_scratch_[omp_get_thread_num()];
     const Hit& hit = hits_[h];
     const int a = vertex_object_[hit.vertex];
@@ -1061,7 +1061,7 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
   };
   const int threads = ThreadsFor(num_threads, num_hits, 16);
   if (threads == 1) {
-    for (int h = 0; h < num_hits; ++h) find(h);
+    for (int h = 0; h < num_hits; ++h) resolve(h);
   } else {
     // each thread starts with the hits into the objects whose triangles it
     // made (HashSurfaces): their hash, boxes, geometry and normals are in
@@ -1074,7 +1074,7 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
         },
         hit_group_offset_, hit_order_);
     ParallelForGroups(
-        threads, hit_group_offset_, [&](int i) { find(hit_order_[i]); }, 16);
+        threads, hit_group_offset_, [&](int i) { resolve(hit_order_[i]); }, 16);
   }
   int edges = 0;
   for (int i = 0; i < num_threads; ++i) edges += thread_scratch_[i].edges;
