@@ -176,8 +176,7 @@ class PenetrationSolver {
     std::vector<Hit> hits;            // stage 1: what the thread found
     HashedVertices gathered;          // stage 1: a tet chunk's candidates (vertex:
                                       // the entry in hashed_)
-    std::vector<int> faces;           // surfaces: an object's faces in play, listed
-                                      // here and then copied to object_faces_
+    std::vector<int> faces;           // surfaces: an object's faces in play
     std::vector<std::uint32_t> seen;  // stage 2: per triangle entry, the query
                                       // in which it was last tested
     std::uint32_t query = 0;
@@ -188,7 +187,21 @@ class PenetrationSolver {
 
   void Prepare(std::span<const CollisionObject> objects);
   void FindCollidingPoints(std::span<const CollisionObject> objects);
+  void FindCollidingPointsAndHashSurfaces(std::span<const CollisionObject> objects, int threads);
+  // stage 1's parts: the vertex hash (begin, classify every vertex, build),
+  // the search (begin: returns the number of chunks; a chunk at a time) and
+  // the merge of the threads' hits
+  void BeginVertexHash();
+  void ClassifyVertices(int begin_vertex, int end_vertex);  // (global numbers)
+  void BuildVertexHash();
+  int BeginSearch(std::span<const CollisionObject> objects, int num_threads);
+  void SearchChunk(std::span<const CollisionObject> objects, int chunk);
+  void MergeHits();
   void HashSurfaces(std::span<const CollisionObject> objects, bool full);
+  // Sets up the per-object arrays for the objects in surface_list_ and
+  // gives each a range of entries; returns the number of entries.
+  int PlaceSurfaces(std::span<const CollisionObject> objects, bool full);
+  void HashSurface(std::span<const CollisionObject> objects, int object);
   // adds the triangles of object b that HashSurfaces left out (for closest
   // features, which may lie outside the region where objects overlap)
   void HashRemainingTriangles(std::span<const CollisionObject> objects, int b);
@@ -248,6 +261,7 @@ class PenetrationSolver {
   std::vector<int> partner_pair_;    // per partner entry: its index in pairs_
   std::vector<Partner> partners_;    // per object, its partners
   std::vector<int> chunk_offset_;    // #objects + 1: global index of stage 1's tet chunks
+  bool searching_ = false;           // stage 1 has tets to search (a deformable object)
 
   SpatialHash hash_;  // stage 1: vertices
   std::vector<Eigen::Vector3i> vertex_cell_;
@@ -290,8 +304,7 @@ class PenetrationSolver {
   std::vector<ObjectTriangles> object_triangles_;  // #objects
   std::vector<int> object_builder_;                // #objects: the thread that made its entries
   std::vector<char> object_penetrated_;
-  std::vector<int> penetrated_list_;            // the objects with object_penetrated_
-  std::vector<std::vector<int>> object_faces_;  // per penetrated object: its faces in the entries
+  std::vector<int> surface_list_;  // the objects whose surfaces are made (the penetrated ones)
   std::vector<char> object_fully_hashed_;
   std::vector<char> object_small_;  // #objects: surface tested directly, not hashed
   std::vector<int> object_entry_begin_, object_entry_end_;  // #objects: its triangle entries
