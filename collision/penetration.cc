@@ -333,8 +333,18 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
   object_lo_.resize(num_objects);
   object_hi_.resize(num_objects);
   for (int o = 0; o < num_objects; ++o) {
-    object_lo_[o] = objects[o].positions->colwise().minCoeff().transpose();
-    object_hi_[o] = objects[o].positions->colwise().maxCoeff().transpose();
+    // (row by row, in one pass: Eigen's column-wise reduction of a
+    // row-major matrix walks each column on its own, six passes)
+    const Positions& x = *objects[o].positions;
+    Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+    Eigen::Vector3d hi = -lo;
+    for (int v = 0; v < x.rows(); ++v) {
+      const Eigen::Vector3d p = x.row(v).transpose();
+      lo = lo.cwiseMin(p);
+      hi = hi.cwiseMax(p);
+    }
+    object_lo_[o] = lo;
+    object_hi_[o] = hi;
     Inflate(object_lo_[o], object_hi_[o]);
   }
   pairs_.clear();
@@ -726,35 +736,37 @@ void PenetrationSolver::MergeHits() {
   for (const ThreadScratch& scratch : thread_scratch_) {
     for (const Hit& hit : scratch.hits) ++hit_offset_[hit.vertex + 1];
   }
-  for (int g = 0; g < num_vertices; ++g) hit_offset_[g + 1] += hit_offset_[g];
+  for (int g = 0, sum = 0; g <= num_vertices; ++g) {  // (the sum in a register)
+    sum += hit_offset_[g];
+    hit_offset_[g] = sum;
+  }
   hits_.resize(hit_offset_[num_vertices]);
   for (const ThreadScratch& scratch : thread_scratch_) {
     for (const Hit& hit : scratch.hits) hits_[hit_offset_[hit.vertex]++] = hit;
   }
-  // (hit_offset_[g] is now the end of vertex g's hits)
+  // (hit_offset_[g] is now the end of vertex g's hits.) Vertex by vertex,
+  // its hits sorted, and one tetrahedron kept per (vertex, object): the one
+  // the vertex is deepest in (a vertex on a shared face or edge is inside
+  // several); the kept hits move down in place
+  int kept = 0;
   for (int g = 0, begin = 0; g < num_vertices; ++g) {
     const int end = hit_offset_[g];
+    hit_offset_[g] = kept;
     if (end - begin > 1) std::sort(hits_.begin() + begin, hits_.begin() + end);
+    for (int i = begin; i < end;) {
+      int j = i;
+      int best = i;
+      while (j < end && hits_[j].penetrated == hits_[i].penetrated) {
+        if (hits_[j].barycentric.minCoeff() > hits_[best].barycentric.minCoeff()) best = j;
+        ++j;
+      }
+      hits_[kept++] = hits_[best];
+      i = j;
+    }
     begin = end;
   }
-  // one tetrahedron per (vertex, object): the one the vertex is deepest in
-  // (a vertex on a shared face or edge is inside several)
-  size_t kept = 0;
-  for (size_t i = 0; i < hits_.size();) {
-    size_t j = i;
-    size_t best = i;
-    while (j < hits_.size() && hits_[j].vertex == hits_[i].vertex &&
-           hits_[j].penetrated == hits_[i].penetrated) {
-      if (hits_[j].barycentric.minCoeff() > hits_[best].barycentric.minCoeff()) best = j;
-      ++j;
-    }
-    hits_[kept++] = hits_[best];
-    i = j;
-  }
+  hit_offset_[num_vertices] = kept;
   hits_.resize(kept);
-  hit_offset_.assign(num_vertices + 1, 0);
-  for (const Hit& hit : hits_) ++hit_offset_[hit.vertex + 1];
-  for (int g = 0; g < num_vertices; ++g) hit_offset_[g + 1] += hit_offset_[g];
 }
 
 // surface triangles of every penetrated object into the triangle hash (with
