@@ -546,6 +546,26 @@ TEST(Determinism, SameResultsWhateverTheThreads) {
   }
   EXPECT_GT(fallback, 100);
   ExpectSameResultsWhateverTheThreads(enclosed, 300);
+  // a self-colliding slab whose far half is folded back into its near half,
+  // and a rigid box pressed into it: self hits and hits in a rigid object
+  TestScene folded;
+  TetMesh slab_mesh = TetMesh::Build(MakeShape("box:size=0.1,0.02,0.02:res=40,8,8"));
+  const int slab_object = folded.Add(std::move(slab_mesh), Pose({0, 0, 0}), /*rigid=*/false,
+                                     /*self_collision=*/true);
+  Positions& x = *folded.positions[slab_object];
+  for (Eigen::Index v = 0; v < x.rows(); ++v) {
+    if (x(v, 0) > 0.0) x.row(v) += Eigen::RowVector3d(-0.045, 0.003, 0.004);
+  }
+  folded.Add(TetMesh::Build(MakeShape("box:size=0.03,0.03,0.03:res=6,6,6")),
+             Pose({-0.03, 0, 0.022}), /*rigid=*/true);
+  int self_hits = 0, rigid_hits = 0;
+  for (const PenetrationResult& result : solver.Solve(folded.objects)) {
+    self_hits += result.object == slab_object && result.penetrated == slab_object;
+    rigid_hits += result.penetrated != slab_object;
+  }
+  EXPECT_GT(self_hits, 100);
+  EXPECT_GT(rigid_hits, 20);
+  ExpectSameResultsWhateverTheThreads(folded, 200);
 }
 
 }  // namespace
