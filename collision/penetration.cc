@@ -44,8 +44,10 @@ constexpr long kMaxTetCells = 512;
 // (up to 2 kChunkTets - 1 tets): a paper sphere's 20 tets are one chunk,
 // not a chunk of 16 and one of 4 that looks up the same cells again.
 constexpr int kChunkTets = TetMesh::kSpatialRun;
-// stage 1 runs on several threads from this many chunks per thread
+// stage 1 runs on several threads from this many chunks per thread, which
+// take this many at a time
 constexpr int kMinChunksPerThread = 512 / kChunkTets;
+constexpr int kChunksPerGrab = std::max(1, 256 / kChunkTets);
 // stage 1's vertex pass classifies the vertices in blocks of this many
 constexpr int kVertexBlock = 1024;
 // on several threads, the surfaces of up to this many objects with partners
@@ -422,8 +424,7 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
   const int num_searched = searching_ && hash_.num_items() > 0 ? num_chunks : 0;
   ParallelFor(
       ThreadsFor(num_threads, num_searched, kMinChunksPerThread), 0, num_searched,
-      [&](int chunk) { SearchChunk(objects, chunk); }, Schedule::kDynamic,
-      std::max(1, 256 / kChunkTets));
+      [&](int chunk) { SearchChunk(objects, chunk); }, Schedule::kDynamic, kChunksPerGrab);
   MergeHits();
   timings_.inside += SecondsSince(start);
 }
@@ -471,7 +472,7 @@ void PenetrationSolver::FindCollidingPointsAndHashSurfaces(std::span<const Colli
     }
     while (!hash_built.load(std::memory_order_acquire)) std::this_thread::yield();
     const int num_searched = searching_ && hash_.num_items() > 0 ? num_chunks : 0;
-#pragma omp for schedule(dynamic, std::max(1, 256 / kChunkTets)) nowait
+#pragma omp for schedule(dynamic, kChunksPerGrab) nowait
     for (int chunk = 0; chunk < num_searched; ++chunk) SearchChunk(objects, chunk);
   }
   MergeHits();

@@ -272,7 +272,10 @@ class PenetrationSolver {
   std::vector<Hit> hits_;                      // sorted by (vertex, penetrated)
   std::vector<int> hit_offset_;                // #global vertices + 1
 
-  std::vector<TriangleEntry> triangles_;             // the entries, by object
+  // the entries, by object: each object's range is the size of its
+  // surface, its entries in play at the start; those added for closest
+  // features (HashRemainingTriangles) come after every object's range
+  std::vector<TriangleEntry> triangles_;
   std::vector<TriangleGeometry> triangle_geometry_;  // per entry
   // small objects' entries by coordinate, in entry order (stage 2 tests
   // four at a time), each array padded by kSimdPadding NaN
@@ -304,7 +307,9 @@ class PenetrationSolver {
   std::vector<ObjectTriangles> object_triangles_;  // #objects
   std::vector<int> object_builder_;                // #objects: the thread that made its entries
   std::vector<char> object_penetrated_;
-  std::vector<int> surface_list_;  // the objects whose surfaces are made (the penetrated ones)
+  // the objects whose surfaces are made: the penetrated ones, or every one
+  // with a partner when stage 1 and the surfaces share a region
+  std::vector<int> surface_list_;
   std::vector<char> object_fully_hashed_;
   std::vector<char> object_small_;  // #objects: surface tested directly, not hashed
   std::vector<int> object_entry_begin_, object_entry_end_;  // #objects: its triangle entries
