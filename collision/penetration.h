@@ -278,7 +278,8 @@ class PenetrationSolver {
   std::vector<TriangleEntry> triangles_;
   std::vector<TriangleGeometry> triangle_geometry_;  // per entry
   // small objects' entries by coordinate, in entry order (stage 2 tests
-  // four at a time), each array padded by kSimdPadding NaN
+  // four at a time), each array padded by kSimdPadding NaN; an object's
+  // range is the size of its surface (lanes past its entries are masked)
   struct SmallTriangles {
     std::vector<double> lo[3], hi[3];        // the box
     std::vector<double> corner[3];           // TriangleGeometry's corner[0]
