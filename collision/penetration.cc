@@ -328,6 +328,7 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
   cell_size_ = options_.cell_size > 0.0 ? options_.cell_size
                : edge_count > 0         ? edge_sum / static_cast<double>(edge_count)
                                         : 1.0;
+  inverse_cell_size_ = 1.0 / cell_size_;  // (as SpatialHash::Reset computes it)
   // broad phase: bounding boxes; per object B its partners (the objects
   // whose boxes overlap B's and that may collide with it, B itself with
   // self-collision), found by sweep and prune along x, and the region where
@@ -446,7 +447,7 @@ void PenetrationSolver::FindCollidingPointsAndHashSurfaces(std::span<const Colli
     if (partner_offset_[o + 1] > partner_offset_[o]) surface_list_.push_back(o);
   }
   const int num_surfaces = static_cast<int>(surface_list_.size());
-  BeginVertexHash();  // (sets the cell size PlaceSurfaces reads)
+  BeginVertexHash();
   PlaceSurfaces(objects, /*full=*/false);
   const int num_chunks = BeginSearch(objects, threads);
   std::atomic<bool> hash_built = false;
@@ -488,7 +489,6 @@ void PenetrationSolver::BeginVertexHash() {
   const int num_vertices = vertex_offset_.back();
   vertex_cell_.resize(num_vertices);
   vertex_outcode_.resize(num_vertices);
-  hash_.Reset(cell_size_, 0);  // sets the cell size for CellOf; sized in BuildVertexHash
 }
 
 void PenetrationSolver::ClassifyVertices(int begin, int end) {
@@ -503,7 +503,7 @@ void PenetrationSolver::ClassifyVertices(int begin, int end) {
     for (int v = g - offset; v < stop - offset; ++v) {
       const Eigen::Vector3d p = x.row(v).transpose();
       outcode[v] = Outcode(p, lo, hi);
-      if (outcode[v] == 0) cell[v] = hash_.CellOf(p);
+      if (outcode[v] == 0) cell[v] = Cell(p);
     }
     g = stop;
   }
@@ -646,8 +646,8 @@ void PenetrationSolver::SearchChunk(std::span<const CollisionObject> objects, in
     const Eigen::Vector3d region_lo = union_lo.cwiseMax(lo);
     const Eigen::Vector3d region_hi = union_hi.cwiseMin(hi);
     if ((region_lo.array() > region_hi.array()).any()) return;
-    const Eigen::Vector3i cell_lo = hash_.CellOf(region_lo);
-    const Eigen::Vector3i cell_hi = hash_.CellOf(region_hi);
+    const Eigen::Vector3i cell_lo = Cell(region_lo);
+    const Eigen::Vector3i cell_hi = Cell(region_hi);
     // visit(e) for every entry e in `box` and the buckets of its cells
     auto for_each_in_cells = [&](const Eigen::Vector3i& from, const Eigen::Vector3i& to,
                                  const Box4& box, auto&& visit) {
@@ -671,8 +671,8 @@ void PenetrationSolver::SearchChunk(std::span<const CollisionObject> objects, in
           const int a = object_of(e);
           if (a >= 0) test(tet, e, a);
         };
-        const Eigen::Vector3i from = hash_.CellOf(tet_lo);
-        const Eigen::Vector3i to = hash_.CellOf(tet_hi);
+        const Eigen::Vector3i from = Cell(tet_lo);
+        const Eigen::Vector3i to = Cell(tet_hi);
         if (CellCount(from, to) > kMaxTetCells) {
           box.ForEachInside(hashed_, 0, num_entries, visit);
         } else {
@@ -814,8 +814,8 @@ int PenetrationSolver::PlaceSurfaces(std::span<const CollisionObject> objects, b
   int num_entries = 0, num_small = 0;
   for (int o : surface_list_) {
     const int num_faces = static_cast<int>(objects[o].mesh->surface().rows());
-    object_cell_lo_[o] = hash_.CellOf(object_lo_[o]);  // (the hashes share cell_size_)
-    object_cell_hi_[o] = hash_.CellOf(object_hi_[o]);
+    object_cell_lo_[o] = Cell(object_lo_[o]);  // (every hash has cell_size_)
+    object_cell_hi_[o] = Cell(object_hi_[o]);
     object_small_[o] = num_faces <= kSmallSurface;
     object_fully_hashed_[o] = full || object_small_[o];
     object_entry_begin_[o] = num_entries;
@@ -960,8 +960,8 @@ void PenetrationSolver::MakeTriangle(std::span<const CollisionObject> objects, i
   geometry.edge[0] = geometry.corner[1] - geometry.corner[0];
   geometry.edge[1] = geometry.corner[2] - geometry.corner[0];
   geometry.edge_lengths = geometry.edge[0].norm() * geometry.edge[1].norm();
-  geometry.cell_lo = hash_.CellOf(entry.lo);
-  geometry.cell_hi = hash_.CellOf(entry.hi);
+  geometry.cell_lo = Cell(entry.lo);
+  geometry.cell_hi = Cell(entry.hi);
 }
 
 void PenetrationSolver::InsertTriangle(int index) {

@@ -237,6 +237,10 @@ class PenetrationSolver {
 
   PenetrationOptions options_;
   double cell_size_ = 1.0;  // of every hash (vertices, each object's triangles), metres
+  double inverse_cell_size_ = 1.0;
+  // the grid cell of p (the same in every hash): read by several threads
+  // while one of them resets a hash
+  Eigen::Vector3i Cell(const Eigen::Vector3d& p) const { return GridCell(p, inverse_cell_size_); }
 
   // per object, fixed while the object set does not change
   std::vector<int> vertex_offset_;  // #objects + 1: global vertex index of each object's first

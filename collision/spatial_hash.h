@@ -26,6 +26,14 @@
 
 namespace tetcosim {
 
+// The cell (i, j, k) of point p in the uniform grid of cell size
+// 1 / inverse_cell_size.
+inline Eigen::Vector3i GridCell(const Eigen::Vector3d& p, double inverse_cell_size) {
+  return {static_cast<int>(std::floor(p.x() * inverse_cell_size)),
+          static_cast<int>(std::floor(p.y() * inverse_cell_size)),
+          static_cast<int>(std::floor(p.z() * inverse_cell_size))};
+}
+
 class SpatialHash {
   __extension__ typedef unsigned __int128 Uint128;
 
@@ -37,11 +45,7 @@ class SpatialHash {
   double cell_size() const { return cell_size_; }
   int table_size() const { return static_cast<int>(table_size_); }
 
-  Eigen::Vector3i CellOf(const Eigen::Vector3d& p) const {
-    return {static_cast<int>(std::floor(p.x() * inverse_cell_size_)),
-            static_cast<int>(std::floor(p.y() * inverse_cell_size_)),
-            static_cast<int>(std::floor(p.z() * inverse_cell_size_))};
-  }
+  Eigen::Vector3i CellOf(const Eigen::Vector3d& p) const { return GridCell(p, inverse_cell_size_); }
   // The bucket of a cell. A non-zero `key` (e.g. an object index + 1) mixes
   // in a fourth large prime, so that items of different keys in the same
   // cell go to different buckets and a query for one key does not walk the
