@@ -271,11 +271,7 @@ const std::vector<PenetrationResult>& PenetrationSolver::Solve(
   // slower, from surfaces made in vain). Not for closest features either,
   // which hash whole surfaces.
   const int threads = ThreadsFor(options_.num_threads, chunk_offset_.back(), kMinChunksPerThread);
-  int num_partnered = 0;
-  for (int o = 0; o < static_cast<int>(objects.size()); ++o) {
-    num_partnered += partner_offset_[o + 1] > partner_offset_[o];
-  }
-  if (threads > 1 && num_partnered <= kMaxSurfacesAheadPerThread * threads &&
+  if (threads > 1 && static_cast<int>(partnered_.size()) <= kMaxSurfacesAheadPerThread * threads &&
       options_.method == DepthMethod::kConsistent) {
     FindCollidingPointsAndHashSurfaces(objects, threads);
   } else {
@@ -391,6 +387,10 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
         for (int i = 0; i < static_cast<int>(pairs_.size()); ++i) emit(pairs_[i][0], i);
       },
       partner_offset_, partner_pair_);
+  partnered_.clear();
+  for (int o = 0; o < num_objects; ++o) {
+    if (partner_offset_[o + 1] > partner_offset_[o]) partnered_.push_back(o);
+  }
   partners_.resize(pairs_.size());
   const double inf = std::numeric_limits<double>::infinity();
   search_lo_.assign(num_objects, Eigen::Vector3d::Constant(inf));
@@ -422,7 +422,7 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
 
   start = Clock::now();
   const int num_chunks = BeginSearch(objects, num_threads);
-  const int num_searched = searching_ && hash_.num_items() > 0 ? num_chunks : 0;
+  const int num_searched = hash_.num_items() > 0 ? num_chunks : 0;
   ParallelFor(
       ThreadsFor(num_threads, num_searched, kMinChunksPerThread), 0, num_searched,
       [&](int chunk) { SearchChunk(objects, chunk); }, Schedule::kDynamic, kChunksPerGrab);
@@ -442,10 +442,7 @@ void PenetrationSolver::FindCollidingPointsAndHashSurfaces(std::span<const Colli
   const Clock::time_point start = Clock::now();
   const int num_objects = static_cast<int>(objects.size());
   const int num_vertices = vertex_offset_[num_objects];
-  surface_list_.clear();
-  for (int o = 0; o < num_objects; ++o) {
-    if (partner_offset_[o + 1] > partner_offset_[o]) surface_list_.push_back(o);
-  }
+  surface_list_.assign(partnered_.begin(), partnered_.end());
   const int num_surfaces = static_cast<int>(surface_list_.size());
   BeginVertexHash();
   PlaceSurfaces(objects, /*full=*/false);
@@ -472,7 +469,7 @@ void PenetrationSolver::FindCollidingPointsAndHashSurfaces(std::span<const Colli
       if (surfaces_left.fetch_sub(1, std::memory_order_acq_rel) == 1) surfaces_end = Clock::now();
     }
     while (!hash_built.load(std::memory_order_acquire)) std::this_thread::yield();
-    const int num_searched = searching_ && hash_.num_items() > 0 ? num_chunks : 0;
+    const int num_searched = hash_.num_items() > 0 ? num_chunks : 0;
 #pragma omp for schedule(dynamic, kChunksPerGrab) nowait
     for (int chunk = 0; chunk < num_searched; ++chunk) SearchChunk(objects, chunk);
   }
@@ -551,11 +548,11 @@ void PenetrationSolver::BuildVertexHash() {
 
 int PenetrationSolver::BeginSearch(std::span<const CollisionObject> objects, int num_threads) {
   const int num_objects = static_cast<int>(objects.size());
-  searching_ = false;  // (only rigid objects: no pair to test)
-  for (const CollisionObject& object : objects) searching_ |= !object.rigid;
+  bool any_deformable = false;  // (only rigid objects: no pair to test)
+  for (const CollisionObject& object : objects) any_deformable |= !object.rigid;
   if (static_cast<int>(thread_scratch_.size()) < num_threads) thread_scratch_.resize(num_threads);
   for (ThreadScratch& scratch : thread_scratch_) scratch.hits.clear();
-  return chunk_offset_[num_objects];
+  return any_deformable ? chunk_offset_[num_objects] : 0;
 }
 
 // pass 2 of stage 1: the tetrahedra, in chunks of kChunkTets consecutive
@@ -1024,8 +1021,8 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
       scratch.query = 0;
     }
     if (scratch.seen.size() < triangles_.size()) scratch.seen.resize(triangles_.size(), 0);
-    thread_scratch_[i].edges = 0;
-    thread_scratch_[i].candidates.clear();
+    scratch.edges = 0;
+    scratch.candidates.clear();
   }
   auto resolve = [&](int h) {  // stages 2 and 3 for hit h
     ThreadScratch& scratch = thread_scratch_[omp_get_thread_num()];

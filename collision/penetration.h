@@ -189,7 +189,8 @@ class PenetrationSolver {
   void FindCollidingPoints(std::span<const CollisionObject> objects);
   void FindCollidingPointsAndHashSurfaces(std::span<const CollisionObject> objects, int threads);
   // stage 1's parts: the vertex hash (begin, classify every vertex, build),
-  // the search (begin: returns the number of chunks; a chunk at a time) and
+  // the search (begin: returns the number of chunks, 0 if every object is
+  // rigid; a chunk at a time) and
   // the merge of the threads' hits
   void BeginVertexHash();
   void ClassifyVertices(int begin_vertex, int end_vertex);  // (global numbers)
@@ -265,7 +266,7 @@ class PenetrationSolver {
   std::vector<int> partner_pair_;    // per partner entry: its index in pairs_
   std::vector<Partner> partners_;    // per object, its partners
   std::vector<int> chunk_offset_;    // #objects + 1: global index of stage 1's tet chunks
-  bool searching_ = false;           // stage 1 has tets to search (a deformable object)
+  std::vector<int> partnered_;       // the objects with partners
 
   SpatialHash hash_;  // stage 1: vertices
   std::vector<Eigen::Vector3i> vertex_cell_;
