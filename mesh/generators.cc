@@ -3,6 +3,7 @@
 #include <array>
 #include <charconv>
 #include <cmath>
+#include <iomanip>
 #include <map>
 #include <numbers>
 #include <sstream>
@@ -121,6 +122,30 @@ std::string Describe(const char* shape, std::initializer_list<double> size, int 
   return out.str();
 }
 
+// The generators make at most this many tetrahedra (2^24, several
+// gigabytes with the mesh's adjacency): a shape beyond it is most likely a
+// slip in its sizes (a capsule a million radii long), and would exhaust
+// memory or run for hours instead of failing.
+constexpr double kMaxGeneratedTets = 1 << 24;
+
+void CheckTetCount(const std::string& description, double tets) {
+  if (tets <= kMaxGeneratedTets) return;
+  std::ostringstream message;
+  message << description << ": would have " << std::setprecision(3) << tets
+          << " tetrahedra, more than the " << static_cast<long>(kMaxGeneratedTets)
+          << " the generators make; check the sizes, lower the resolution, or mesh the shape "
+             "with gmsh";
+  throw Error(message.str());
+}
+
+// the layers of cells along a length of `length` in cells of `cell`
+// (rounded), checked against kMaxGeneratedTets with `tets_per_layer`
+int Layers(const std::string& description, double length, double cell, double tets_per_layer) {
+  const double layers = std::round(length / cell);
+  CheckTetCount(description, layers * tets_per_layer);
+  return static_cast<int>(layers);
+}
+
 }  // namespace
 
 RawMesh MakeBox(const Eigen::Vector3d& half_size, const Eigen::Vector3i& cells, int tets_per_cell) {
@@ -138,6 +163,8 @@ RawMesh MakeBox(const Eigen::Vector3d& half_size, const Eigen::Vector3i& cells, 
   source << "box:size=" << half_size.x() << "," << half_size.y() << "," << half_size.z()
          << ":res=" << cells.x() << "," << cells.y() << "," << cells.z()
          << ":split=" << tets_per_cell;
+  CheckTetCount(source.str(),
+                static_cast<double>(tets_per_cell) * cells.x() * cells.y() * cells.z());
   if (tets_per_cell == 6) {
     KuhnGrid({cells.x(), cells.y(), cells.z()}, {false, false, false}, map, out);
     return out.Finish(source.str());
@@ -266,7 +293,8 @@ RawMesh MakeSphere(double radius, int resolution) {
 RawMesh MakeCylinder(double radius, double half_height, int resolution) {
   MeshBuilder out;
   const int n = resolution;
-  const int nz = std::max(1, static_cast<int>(std::lround(half_height * n / radius)));
+  const int nz = std::max(1, Layers(Describe("cylinder", {radius, half_height}, resolution),
+                                    half_height * n, radius, 6.0 * n * n));
   KuhnGrid(
       {n, n, nz}, {false, false, false},
       [&](int i, int j, int k) {
@@ -281,7 +309,8 @@ RawMesh MakeCapsule(double radius, double half_length, int resolution) {
   MeshBuilder out;
   const int n = resolution;
   const int cap = std::max(1, (n + 1) / 2);
-  const int middle = static_cast<int>(std::lround(half_length * n / radius));
+  const int middle = Layers(Describe("capsule", {radius, half_length}, resolution), half_length * n,
+                            radius, 6.0 * n * n);
   const int nz = 2 * cap + middle;
   KuhnGrid(
       {n, n, nz}, {false, false, false},
@@ -309,7 +338,8 @@ RawMesh MakeTorus(double major_radius, double minor_radius, int resolution) {
   const int n = resolution;
   const double cell = 2.0 * minor_radius / n;
   const int segments =
-      std::max(8, static_cast<int>(std::lround(2.0 * std::numbers::pi * major_radius / cell)));
+      std::max(8, Layers(Describe("torus", {major_radius, minor_radius}, resolution),
+                         2.0 * std::numbers::pi * major_radius, cell, 6.0 * n * n));
   KuhnGrid(
       {n, n, segments}, {false, false, true},
       [&](int i, int j, int k) {

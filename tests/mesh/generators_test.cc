@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <numbers>
+#include <string>
 
 #include "mesh/error.h"
 #include "mesh/quality.h"
@@ -115,6 +116,22 @@ TEST(Generators, BadSpecsAreErrors) {
     EXPECT_THROW(MakeShape(spec), Error) << spec;
   }
   EXPECT_TRUE(IsShapeSpec("torus:size=1,0.2"));
+}
+
+// Shapes whose sizes would make more than 2^24 tetrahedra (a slip in the
+// sizes: a capsule a million radii long) are errors that say so, not hours
+// of meshing; the error names the count.
+TEST(Generators, ShapesTooFineToMeshAreErrors) {
+  for (const char* spec : {"capsule:size=0.001,1000:res=3", "cylinder:size=1e-9,1e9:res=2",
+                           "torus:size=1e9,1e-9:res=2", "box:size=1:res=256"}) {
+    try {
+      MakeShape(spec);
+      ADD_FAILURE() << spec << " was meshed";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("tetrahedra, more than the 16777216"), std::string::npos)
+          << e.what();
+    }
+  }
   EXPECT_FALSE(IsShapeSpec("models/meshes/torus.msh"));
   EXPECT_FALSE(IsShapeSpec("boxes.msh"));
 }
