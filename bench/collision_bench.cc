@@ -2,7 +2,8 @@
 // scenes the collision issue names: two cubes of 1250 tetrahedra at several
 // overlaps, 120 paper spheres (20 tetrahedra each) packed with many
 // contacts, a scene of about 100k tetrahedra, and 1 to 10 copies of the
-// two-cube scene (cost against the number of colliding points).
+// two-cube scene (cost against the number of colliding points); and a
+// coarse box's corner in a fine ball (edges hundreds of cells long).
 //
 // Counters: colliding points, intersection edges (stage 2), microseconds
 // per colliding point (from the solver's own wall-clock timing of Solve),
@@ -15,6 +16,7 @@
 #include <Eigen/Geometry>
 #include <memory>
 #include <random>
+#include <string>
 
 #include "collision/penetration.h"
 #include "mesh/generators.h"
@@ -160,6 +162,23 @@ BENCHMARK(BM_LargeScene)
     ->ArgsProduct({{100}, {0, 1}, {1, 2}})
     ->ArgNames({"ktets", "closest", "threads"})
     ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+
+// a coarse box (one cell, 1 m: a rigid proxy meshed at resolution 1) with a
+// corner in a finely meshed ball (radius 2 cm, subdivision `level`): the
+// box's edges from that corner are hundreds of cells long (stage 2 then
+// tests the ball's triangle hash whole; cell by cell, one solve took 0.5 s)
+void BM_CoarseCorner(benchmark::State& state) {
+  Scene scene;
+  scene.Add(scene.Mesh("box:size=0.5,0.5,0.5:res=1"), Eigen::Vector3d::Zero());
+  const std::string ball = "sphere:size=0.02:res=" + std::to_string(state.range(0));
+  scene.Add(scene.Mesh(ball), Eigen::Vector3d(0.5, 0.5, 0.5));
+  Run(state, scene);
+}
+BENCHMARK(BM_CoarseCorner)
+    ->ArgsProduct({{4}, {0, 1}, {1, 2}})
+    ->ArgNames({"level", "closest", "threads"})
+    ->Unit(benchmark::kMicrosecond)
     ->UseRealTime();
 
 }  // namespace

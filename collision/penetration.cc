@@ -36,6 +36,13 @@ constexpr long kMaxTriangleCells = 64;
 // Tetrahedra whose bounding box covers more cells than this test candidate
 // vertices directly instead of cell by cell.
 constexpr long kMaxTetCells = 512;
+// Stage 2 tests every entry of a triangle hash, four boxes at a time, instead
+// of looking up a segment's cells when the segment covers more cells than
+// the hash has entries over this (a cell's lookup costs about as much as
+// testing this many boxes): an edge far longer than the cell, such as one
+// of a coarse rigid proxy whose corner is inside a finely meshed body,
+// would otherwise visit millions of cells.
+constexpr long kEntriesPerCellLookup = 4;
 // Stage 1 takes the tetrahedra of an object in chunks of this many, the
 // runs that TetMesh::spatial_tet_order keeps compact, and looks up the
 // cells of a chunk's union of boxes once, unless they are more than
@@ -212,9 +219,15 @@ int ThreadsFor(int num_threads, int n, int min_per_thread) {
   return std::clamp(n / min_per_thread, 1, std::max(1, num_threads));
 }
 
+// The cells of the box [lo, hi] of cells: 0 if it is empty, and saturated
+// at the largest long (a box across the whole clamped grid has 2^93).
 long CellCount(const Eigen::Vector3i& lo, const Eigen::Vector3i& hi) {
   long count = 1;
-  for (int a = 0; a < 3; ++a) count *= static_cast<long>(hi[a]) - lo[a] + 1;
+  for (int a = 0; a < 3; ++a) {
+    const long n = static_cast<long>(hi[a]) - lo[a] + 1;
+    if (n <= 0) return 0;
+    if (__builtin_mul_overflow(count, n, &count)) return std::numeric_limits<long>::max();
+  }
   return count;
 }
 
@@ -1116,14 +1129,22 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
         // time; a triangle covering several of those cells is met in
         // each: tested once per query
         const std::uint32_t query = ++scratch.query;
-        const Eigen::Vector3i lo = hashed.hash.CellOf(segment_lo);
-        const Eigen::Vector3i hi = hashed.hash.CellOf(segment_hi);
+        Eigen::Vector3i lo = hashed.hash.CellOf(segment_lo);
+        Eigen::Vector3i hi = hashed.hash.CellOf(segment_hi);
+        // a segment across too many cells (kEntriesPerCellLookup): every
+        // entry in one pass instead, which tests the same triangles (one
+        // whose box meets the segment's shares a cell with it)
+        const bool every_entry =
+            CellCount(lo, hi) > hashed.hash.num_items() / kEntriesPerCellLookup;
+        if (every_entry) hi = lo;
         const Box4 segment_box(segment_lo, segment_hi);
         const std::span<const int> items = hashed.hash.items();
         for (int k = lo.z(); k <= hi.z(); ++k) {
           for (int j = lo.y(); j <= hi.y(); ++j) {
             for (int i = lo.x(); i <= hi.x(); ++i) {
-              const SpatialHash::Range range = hashed.hash.Find({i, j, k});
+              const SpatialHash::Range range = every_entry
+                                                   ? SpatialHash::Range{0, hashed.hash.num_items()}
+                                                   : hashed.hash.Find({i, j, k});
               for (int e = range.begin; e < range.end; e += 4) {
                 for (unsigned bits =
                          segment_box.Overlapping(hashed.boxes.lo, hashed.boxes.hi, e, range.end);
@@ -1349,12 +1370,14 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
           Eigen::Vector3i cell(cx, cy, cz);
           // only the shell of the cube: the inside was searched before
           if ((cell - center).cwiseAbs().maxCoeff() != k) continue;
-          // skip cells farther from p than the best so far
+          // skip cells farther from p than the best so far (not a boundary
+          // cell of the clamped grid, which reaches beyond its nominal
+          // place)
           Eigen::Vector3d cell_lo = cell.cast<double>() * cell_size_;
           Eigen::Vector3d gap = (cell_lo - p)
                                     .cwiseMax(p - cell_lo - Eigen::Vector3d::Constant(cell_size_))
                                     .cwiseMax(0.0);
-          if (gap.squaredNorm() > best) continue;
+          if (gap.squaredNorm() > best && cell.cwiseAbs().maxCoeff() < kMaxGridCell) continue;
           hashed.hash.ForEach(cell, [&](int index) {
             const TriangleGeometry& triangle = triangle_geometry_[index];
             if ((cell.array() >= triangle.cell_lo.array()).all() &&

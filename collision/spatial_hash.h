@@ -19,6 +19,7 @@
 // than any before.
 
 #include <Eigen/Core>
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <span>
@@ -26,12 +27,25 @@
 
 namespace tetcosim {
 
+// Cell coordinates are clamped to [-kMaxGridCell, kMaxGridCell] (2^30 cells:
+// a thousand kilometres at millimetre cells), so that any point, however far
+// (a body flying off in a diverging simulation), has a cell without
+// overflowing int; points beyond share the boundary cells. Clamping keeps
+// the order of coordinates, so boxes that meet still share a cell, and
+// every caller re-checks what it finds in a bucket: results stay exact,
+// only the boundary cells are no longer small. (NaN goes to the upper
+// bound.)
+inline constexpr double kMaxGridCell = 1 << 30;
+
+inline int GridCoordinate(double scaled) {
+  return static_cast<int>(std::max(-kMaxGridCell, std::min(kMaxGridCell, std::floor(scaled))));
+}
+
 // The cell (i, j, k) of point p in the uniform grid of cell size
 // 1 / inverse_cell_size.
 inline Eigen::Vector3i GridCell(const Eigen::Vector3d& p, double inverse_cell_size) {
-  return {static_cast<int>(std::floor(p.x() * inverse_cell_size)),
-          static_cast<int>(std::floor(p.y() * inverse_cell_size)),
-          static_cast<int>(std::floor(p.z() * inverse_cell_size))};
+  return {GridCoordinate(p.x() * inverse_cell_size), GridCoordinate(p.y() * inverse_cell_size),
+          GridCoordinate(p.z() * inverse_cell_size)};
 }
 
 class SpatialHash {

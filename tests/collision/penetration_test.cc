@@ -135,7 +135,10 @@ TEST(CollidingPoints, HashMatchesBruteForceInCrowdedScenes) {
 // solver's border points must match, whatever path found the crossings
 // (small objects' triangles four at a time, the hashed grid, triangles
 // too large to hash).
-void ExpectBorderPointsMatchBruteForce(const TestScene& scene, double cell_size) {
+// (depth_tolerance: absolute, metres; positions far from the origin round
+// to coarser steps)
+void ExpectBorderPointsMatchBruteForce(const TestScene& scene, double cell_size,
+                                       double depth_tolerance = 1e-12) {
   PenetrationOptions options;
   options.cell_size = cell_size;
   PenetrationSolver solver(options);
@@ -213,7 +216,7 @@ void ExpectBorderPointsMatchBruteForce(const TestScene& scene, double cell_size)
       EXPECT_EQ(r.depth, 0.0);
       EXPECT_LT((r.direction - nearest_normal).norm(), 1e-9);
     } else {
-      EXPECT_NEAR(r.depth, std::max(0.0, depth_sum / weight_sum), 1e-12);
+      EXPECT_NEAR(r.depth, std::max(0.0, depth_sum / weight_sum), depth_tolerance);
       // (normals that cancel leave the nearest crossing's)
       const Eigen::Vector3d direction = normal_sum.norm() > 1e-12 * weight_sum
                                             ? Eigen::Vector3d(normal_sum.normalized())
@@ -233,6 +236,52 @@ TEST(ConsistentDepth, BorderPointsMatchBruteForceInCrowdedScenes) {
       SCOPED_TRACE(::testing::Message() << "trial " << trial << " cell " << cell);
       ExpectBorderPointsMatchBruteForce(scene, cell);
     }
+  }
+}
+
+// A coarse box (edges of 1 m and longer) with a corner in a finely meshed
+// ball (cells of 5 mm): the box's edges from that corner each cover up to
+// 10^7 cells, so stage 2 tests the ball's whole triangle hash instead of
+// looking the cells up one by one; the border points still match brute
+// force, both ways (the ball's vertices inside the box cross its large
+// faces).
+TEST(ConsistentDepth, LongEdgesIntoAFineBodyMatchBruteForce) {
+  TestScene scene;
+  scene.Add("box:size=0.5,0.5,0.5:res=1", {0, 0, 0});
+  scene.Add("sphere:size=0.02:res=3", {0.5, 0.5, 0.5});
+  ExpectBorderPointsMatchBruteForce(scene, 0.005);
+}
+
+// The crowded scene ten thousand kilometres from the origin, with 1 mm
+// cells: its cell coordinates (10^10) lie beyond the clamped grid (2^30),
+// so every vertex and triangle shares the boundary cells. Colliding
+// points, border points and closest features still match brute force.
+TEST(CollidingPoints, FarBeyondTheGridMatchesBruteForce) {
+  TestScene scene = CrowdedScene(0);
+  const Eigen::Vector3d far(1e7, -1e7, 3e6);
+  for (auto& x : scene.positions) x->rowwise() += far.transpose();
+  PenetrationOptions options;
+  options.cell_size = 0.001;
+  ExpectSameCollidingPoints(scene, options);
+  // (positions there round to 2e-9 m: depths agree to a few of those steps)
+  ExpectBorderPointsMatchBruteForce(scene, 0.001, 1e-7);
+  options.method = DepthMethod::kClosest;
+  PenetrationSolver solver(options);
+  solver.Solve(scene.objects);
+  ASSERT_GT(solver.results().size(), 20u);
+  for (const PenetrationResult& r : solver.results()) {
+    const CollisionObject& b = scene.objects[r.penetrated];
+    const Triangles& surface = b.mesh->surface();
+    const Eigen::Vector3d p = scene.objects[r.object].positions->row(r.vertex).transpose();
+    double best = 1e300;
+    for (Eigen::Index f = 0; f < surface.rows(); ++f) {
+      if (r.object == r.penetrated && (surface.row(f).array() == r.vertex).any()) continue;
+      const Eigen::Vector3d c =
+          ClosestPointOnTriangle(p, b.positions->row(surface(f, 0)),
+                                 b.positions->row(surface(f, 1)), b.positions->row(surface(f, 2)));
+      best = std::min(best, (c - p).norm());
+    }
+    EXPECT_NEAR(r.depth, best, 1e-15) << "object " << r.object << " vertex " << r.vertex;
   }
 }
 
