@@ -933,10 +933,31 @@ void PenetrationSolver::HashRemainingTriangles(std::span<const CollisionObject> 
     MakeTriangle(objects, b, f, entry, geometry);
     triangles_.push_back(entry);
     triangle_geometry_.push_back(geometry);
-    InsertTriangle(static_cast<int>(triangles_.size()) - 1);
   }
   object_rest_end_[b] = static_cast<int>(triangles_.size());
-  if (object_rest_end_[b] > object_rest_begin_[b]) BuildTriangleHash(b);
+  if (object_rest_end_[b] == object_rest_begin_[b]) return;
+  // B's table was sized for its triangles in play: hash them all again in
+  // a table sized for every triangle, whose buckets would otherwise be
+  // overfull (a body enclosed in a large one has no triangle in play: a
+  // table of 37 buckets took 10^4 triangles, and the fallback of 2058
+  // points took 34 s)
+  const std::array<std::array<int, 2>, 2> ranges = {{{object_entry_begin_[b], object_entry_end_[b]},
+                                                     {object_rest_begin_[b], object_rest_end_[b]}}};
+  long num_pairs = 0;
+  for (const auto& [begin, end] : ranges) {
+    for (int index = begin; index < end; ++index) {
+      const TriangleGeometry& geometry = triangle_geometry_[index];
+      const long cells = CellCount(geometry.cell_lo, geometry.cell_hi);
+      if (cells <= kMaxTriangleCells) num_pairs += cells;
+    }
+  }
+  ObjectTriangles& hashed = object_triangles_[b];
+  hashed.hash.Reset(cell_size_, static_cast<int>(num_pairs));
+  hashed.large.clear();
+  for (const auto& [begin, end] : ranges) {
+    for (int index = begin; index < end; ++index) InsertTriangle(index);
+  }
+  BuildTriangleHash(b);
 }
 
 bool PenetrationSolver::TriangleInRegion(std::span<const CollisionObject> objects, int object,

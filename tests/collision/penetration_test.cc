@@ -442,6 +442,38 @@ TEST(ConsistentDepth, EnclosedObjectGetsFlaggedFallbackValues) {
   EXPECT_EQ(strict.stats().unresolved, fallback);
 }
 
+// The fallback searches all of B's surface, also the triangles already in
+// play for another partner: a ball enclosed in a large box just behind its
+// +x face, and a small box pushed into that face right in front of the
+// ball (so the face's triangles nearest the ball are in B's table for the
+// small box's sake, the rest are added for the fallback). The ball's
+// points get the distance to the nearest face, solve after solve.
+TEST(ConsistentDepth, FallbackSearchesTheWholeSurface) {
+  TestScene scene;
+  int box = scene.Add("box:size=0.2,0.2,0.2:res=8", {0, 0, 0});
+  int ball = scene.Add("sphere:size=0.03:res=2", {0.15, 0.004, -0.003});
+  int poker = scene.Add("box:size=0.05,0.05,0.05:res=2", {0.24, 0.0, 0.0});
+  PenetrationSolver solver;
+  for (int solve = 0; solve < 2; ++solve) {
+    solver.Solve(scene.objects);
+    int fallback = 0, poked = 0;
+    for (const PenetrationResult& r : solver.results()) {
+      if (r.penetrated != box) continue;  // (the box's face inside the small box)
+      if (r.object == poker) {
+        ++poked;
+        continue;
+      }
+      ASSERT_EQ(r.object, ball);
+      EXPECT_EQ(r.source, DepthSource::kFallback);
+      const Eigen::Vector3d p = scene.positions[ball]->row(r.vertex);
+      EXPECT_NEAR(r.depth, (Eigen::Vector3d::Constant(0.2) - p.cwiseAbs()).minCoeff(), 1e-12);
+      ++fallback;
+    }
+    EXPECT_EQ(fallback, scene.meshes[ball]->num_vertices());
+    EXPECT_GT(poked, 0);
+  }
+}
+
 TEST(ConsistentDepth, SelfCollisionOnAndOff) {
   // fold a bar: move its last layer of vertices into its middle
   TetMesh bar = TetMesh::Build(MakeShape("box:size=0.2,0.02,0.02:res=10,1,1"));
