@@ -350,14 +350,23 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
     const Positions& x = *objects[o].positions;
     Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
     Eigen::Vector3d hi = -lo;
+    Eigen::Vector3d non_finite = Eigen::Vector3d::Zero();  // stays 0 for finite positions
     for (int v = 0; v < x.rows(); ++v) {
       const Eigen::Vector3d p = x.row(v).transpose();
       lo = lo.cwiseMin(p);
       hi = hi.cwiseMax(p);
+      non_finite += p - p;  // (NaN for an infinite or NaN coordinate)
+    }
+    if (!(non_finite.array() == 0.0).all()) {
+      // left out: an empty box meets no other, and sorts last
+      ++stats_.non_finite_objects;
+      lo.setConstant(std::numeric_limits<double>::infinity());
+      hi = -lo;
+    } else {
+      Inflate(lo, hi);
     }
     object_lo_[o] = lo;
     object_hi_[o] = hi;
-    Inflate(object_lo_[o], object_hi_[o]);
   }
   pairs_.clear();
   sweep_order_.resize(num_objects);
@@ -378,6 +387,7 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
   }
   for (int i = 0; i < num_objects; ++i) {
     const int a = sweep_order_[i];
+    if (object_lo_[a].x() > object_hi_[a].x()) continue;  // (left out)
     if (objects[a].self_collision) pairs_.push_back({a, a});
     int end = i + 1;
     while (end < num_objects && sweep_lo_[0][end] <= object_hi_[a].x()) ++end;

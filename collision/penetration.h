@@ -106,6 +106,10 @@ struct PenetrationStats {
   int unresolved = 0;  // colliding points that got no value (fallback off)
   int intersection_edges = 0;
   int layers = 0;  // propagation layers
+  // objects left out of the solve for an infinite or NaN position (the
+  // caller's state has diverged; the rest of the scene is solved as if
+  // they were not there)
+  int non_finite_objects = 0;
   double max_depth = 0.0;
   double mean_depth = 0.0;
 };

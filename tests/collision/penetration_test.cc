@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <map>
 #include <numbers>
 #include <random>
@@ -282,6 +283,48 @@ TEST(CollidingPoints, FarBeyondTheGridMatchesBruteForce) {
       best = std::min(best, (c - p).norm());
     }
     EXPECT_NEAR(r.depth, best, 1e-15) << "object " << r.object << " vertex " << r.vertex;
+  }
+}
+
+// An object with a NaN or infinite position (a caller whose state has
+// diverged) is left out and counted: the rest of the scene gets, bit for
+// bit, the results it gets with that object far away instead (where the
+// folded bar still collides with itself: those results are not compared).
+TEST(CollidingPoints, NonFiniteObjectsAreLeftOut) {
+  for (double bad :
+       {std::numeric_limits<double>::quiet_NaN(), std::numeric_limits<double>::infinity()}) {
+    for (int object : {0, 3, 15}) {  // the large box, a small body, the folded bar
+      TestScene broken = CrowdedScene(1);
+      TestScene away = CrowdedScene(1);
+      (*broken.positions[object])(2, 1) = bad;
+      *away.positions[object] = away.positions[object]->array() + 1000.0;
+      for (DepthMethod method : {DepthMethod::kConsistent, DepthMethod::kClosest}) {
+        for (int threads : {1, 2}) {
+          SCOPED_TRACE(::testing::Message()
+                       << bad << " in object " << object << ", method " << DepthMethodName(method)
+                       << ", " << threads << " threads");
+          PenetrationOptions options;
+          options.method = method;
+          options.num_threads = threads;
+          PenetrationSolver solver(options), reference(options);
+          const std::vector<PenetrationResult>& results = solver.Solve(broken.objects);
+          std::vector<PenetrationResult> expected = reference.Solve(away.objects);
+          std::erase_if(expected, [&](const PenetrationResult& r) { return r.object == object; });
+          EXPECT_EQ(solver.stats().non_finite_objects, 1);
+          EXPECT_EQ(reference.stats().non_finite_objects, 0);
+          ASSERT_GT(expected.size(), 20u);
+          ASSERT_EQ(results.size(), expected.size());
+          for (size_t i = 0; i < results.size(); ++i) {
+            const PenetrationResult& x = results[i];
+            const PenetrationResult& y = expected[i];
+            EXPECT_EQ(std::tie(x.object, x.vertex, x.penetrated, x.tet, x.source),
+                      std::tie(y.object, y.vertex, y.penetrated, y.tet, y.source));
+            EXPECT_EQ(std::memcmp(&x.depth, &y.depth, sizeof(double)), 0);
+            EXPECT_EQ(std::memcmp(x.direction.data(), y.direction.data(), 3 * sizeof(double)), 0);
+          }
+        }
+      }
+    }
   }
 }
 
