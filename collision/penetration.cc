@@ -66,8 +66,12 @@ constexpr long kMaxChunkCells = 64;
 constexpr int kMaxKeyedPartners = 4;
 // Objects with at most this many surface triangles (the paper's 20-tet
 // spheres) are not hashed: a query tests their few triangles directly,
-// which is cheaper than walking the cells of a segment or a search shell.
+// which is cheaper than walking the cells of a segment or a box tree.
 constexpr int kSmallSurface = 48;
+// Closest features search a larger object through a box tree when it has
+// at least this many queries in a solve, else all its triangles (a tree
+// costs about as much to build as this many searches of every triangle).
+constexpr int kMinTreeQueries = 32;
 
 // (all six comparisons, combined without branches: in the hot loops the
 // outcome is close to random, and mispredicted branches cost more)
@@ -820,8 +824,7 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
 int PenetrationSolver::PlaceSurfaces(std::span<const CollisionObject> objects, bool full) {
   const int num_objects = static_cast<int>(objects.size());
   object_fully_hashed_.assign(num_objects, 0);
-  object_cell_lo_.resize(num_objects);
-  object_cell_hi_.resize(num_objects);
+  object_tree_built_.assign(num_objects, 0);
   object_small_.assign(num_objects, 0);
   object_entry_begin_.assign(num_objects, 0);
   object_entry_end_.assign(num_objects, 0);
@@ -834,8 +837,6 @@ int PenetrationSolver::PlaceSurfaces(std::span<const CollisionObject> objects, b
   int num_entries = 0, num_small = 0;
   for (int o : surface_list_) {
     const int num_faces = static_cast<int>(objects[o].mesh->surface().rows());
-    object_cell_lo_[o] = Cell(object_lo_[o]);  // (every hash has cell_size_)
-    object_cell_hi_[o] = Cell(object_hi_[o]);
     object_small_[o] = num_faces <= kSmallSurface;
     object_fully_hashed_[o] = full || object_small_[o];
     object_entry_begin_[o] = num_entries;
@@ -904,6 +905,9 @@ void PenetrationSolver::HashSurface(std::span<const CollisionObject> objects, in
     }
     small_.edge_lengths[s] = geometry.edge_lengths;
   }
+  // (closest features need neither the hash nor the normals: their queries
+  // go through the object's box tree)
+  if (options_.method == DepthMethod::kClosest) return;
   if (!object_small_[o]) {  // (a small one is tested from the list)
     // a table twice the size of the (cell, triangle) pairs: few buckets
     // shared by cells, whose entries a query would test too
@@ -931,7 +935,7 @@ void PenetrationSolver::HashSurface(std::span<const CollisionObject> objects, in
   }
 }
 
-void PenetrationSolver::HashRemainingTriangles(std::span<const CollisionObject> objects, int b) {
+void PenetrationSolver::AddRemainingTriangles(std::span<const CollisionObject> objects, int b) {
   if (object_fully_hashed_[b]) return;
   object_fully_hashed_[b] = 1;
   const Triangles& surface = objects[b].mesh->surface();
@@ -945,29 +949,23 @@ void PenetrationSolver::HashRemainingTriangles(std::span<const CollisionObject> 
     triangle_geometry_.push_back(geometry);
   }
   object_rest_end_[b] = static_cast<int>(triangles_.size());
-  if (object_rest_end_[b] == object_rest_begin_[b]) return;
-  // B's table was sized for its triangles in play: hash them all again in
-  // a table sized for every triangle, whose buckets would otherwise be
-  // overfull (a body enclosed in a large one has no triangle in play: a
-  // table of 37 buckets took 10^4 triangles, and the fallback of 2058
-  // points took 34 s)
-  const std::array<std::array<int, 2>, 2> ranges = {{{object_entry_begin_[b], object_entry_end_[b]},
-                                                     {object_rest_begin_[b], object_rest_end_[b]}}};
-  long num_pairs = 0;
-  for (const auto& [begin, end] : ranges) {
+}
+
+void PenetrationSolver::BuildTree(int b) {
+  ObjectTriangles& hashed = object_triangles_[b];
+  hashed.tree_lo.clear();
+  hashed.tree_hi.clear();
+  hashed.tree_entry.clear();
+  for (const auto& [begin, end] :
+       {std::array<int, 2>{object_entry_begin_[b], object_entry_end_[b]},
+        std::array<int, 2>{object_rest_begin_[b], object_rest_end_[b]}}) {
     for (int index = begin; index < end; ++index) {
-      const TriangleGeometry& geometry = triangle_geometry_[index];
-      const long cells = CellCount(geometry.cell_lo, geometry.cell_hi);
-      if (cells <= kMaxTriangleCells) num_pairs += cells;
+      hashed.tree_lo.push_back(triangles_[index].lo);
+      hashed.tree_hi.push_back(triangles_[index].hi);
+      hashed.tree_entry.push_back(index);
     }
   }
-  ObjectTriangles& hashed = object_triangles_[b];
-  hashed.hash.Reset(cell_size_, static_cast<int>(num_pairs));
-  hashed.large.clear();
-  for (const auto& [begin, end] : ranges) {
-    for (int index = begin; index < end; ++index) InsertTriangle(index);
-  }
-  BuildTriangleHash(b);
+  hashed.tree.Build(hashed.tree_lo, hashed.tree_hi);
 }
 
 bool PenetrationSolver::TriangleInRegion(std::span<const CollisionObject> objects, int object,
@@ -1354,7 +1352,12 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
   const Triangles& surface = objects[b].mesh->surface();
   double best = std::numeric_limits<double>::infinity();
   auto test = [&](int index) {
-    const int f = triangles_[index].face;
+    // (a triangle whose box is farther than the best cannot be nearer: on
+    // a coarse box pressed into a fine body, most queries test every one
+    // of its large faces)
+    const TriangleEntry& entry = triangles_[index];
+    if ((entry.lo - p).cwiseMax(p - entry.hi).cwiseMax(0.0).squaredNorm() > best) return;
+    const int f = entry.face;
     if (exclude >= 0 &&
         (surface(f, 0) == exclude || surface(f, 1) == exclude || surface(f, 2) == exclude)) {
       return;
@@ -1372,59 +1375,15 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
     for (int entry = object_entry_begin_[b]; entry < object_entry_end_[b]; ++entry) test(entry);
     return std::isfinite(best);
   }
-  const ObjectTriangles& hashed = object_triangles_[b];
-  for (int entry : hashed.large) test(entry);
-  // search cubes of cells of growing radius k around p's cell: every point
-  // within k cells of p lies in the cube, so the search may stop as soon as
-  // the best distance is at most k cell sizes
-  const double cell_size = cell_size_;
-  const Eigen::Vector3i center = hashed.hash.CellOf(p);
-  const Eigen::Vector3i& box_lo = object_cell_lo_[b];  // B's bounding box in cells
-  const Eigen::Vector3i& box_hi = object_cell_hi_[b];
-  // with cells much smaller than the distance to the surface the shells
-  // would visit more cells than B has triangles: then test them all
-  const long num_entries = (object_entry_end_[b] - object_entry_begin_[b]) +
-                           (object_rest_end_[b] - object_rest_begin_[b]);
-  long cells_visited = 0;
-  for (int k = 0;; ++k) {
-    Eigen::Vector3i lo = (center.array() - k).matrix().cwiseMax(box_lo);
-    Eigen::Vector3i hi = (center.array() + k).matrix().cwiseMin(box_hi);
-    cells_visited += CellCount(lo, hi);
-    if (cells_visited > 4 * num_entries) {
-      for (int entry = object_entry_begin_[b]; entry < object_entry_end_[b]; ++entry) test(entry);
-      for (int entry = object_rest_begin_[b]; entry < object_rest_end_[b]; ++entry) test(entry);
-      break;
-    }
-    for (int cz = lo.z(); cz <= hi.z(); ++cz) {
-      for (int cy = lo.y(); cy <= hi.y(); ++cy) {
-        for (int cx = lo.x(); cx <= hi.x(); ++cx) {
-          Eigen::Vector3i cell(cx, cy, cz);
-          // only the shell of the cube: the inside was searched before
-          if ((cell - center).cwiseAbs().maxCoeff() != k) continue;
-          // skip cells farther from p than the best so far (not a boundary
-          // cell of the clamped grid, which reaches beyond its nominal
-          // place)
-          Eigen::Vector3d cell_lo = cell.cast<double>() * cell_size_;
-          Eigen::Vector3d gap = (cell_lo - p)
-                                    .cwiseMax(p - cell_lo - Eigen::Vector3d::Constant(cell_size_))
-                                    .cwiseMax(0.0);
-          if (gap.squaredNorm() > best && cell.cwiseAbs().maxCoeff() < kMaxGridCell) continue;
-          hashed.hash.ForEach(cell, [&](int index) {
-            const TriangleGeometry& triangle = triangle_geometry_[index];
-            if ((cell.array() >= triangle.cell_lo.array()).all() &&
-                (cell.array() <= triangle.cell_hi.array()).all()) {
-              test(index);
-            }
-          });
-        }
-      }
-    }
-    if (best <= (k * cell_size) * (k * cell_size)) break;
-    // the cube covers all of B's cells: nothing left to find
-    if (((center.array() - k) <= box_lo.array()).all() &&
-        ((center.array() + k) >= box_hi.array()).all()) {
-      break;
-    }
+  // the object's box tree over all its triangles if ComputeClosest built
+  // it (nearer boxes first, those farther than the best passed over), else
+  // every triangle
+  if (object_tree_built_[b]) {
+    const ObjectTriangles& hashed = object_triangles_[b];
+    hashed.tree.Nearest(p, best, [&](int item) { test(hashed.tree_entry[item]); });
+  } else {
+    for (int entry = object_entry_begin_[b]; entry < object_entry_end_[b]; ++entry) test(entry);
+    for (int entry = object_rest_begin_[b]; entry < object_rest_end_[b]; ++entry) test(entry);
   }
   return std::isfinite(best);
 }
@@ -1441,11 +1400,25 @@ void PenetrationSolver::ComputeClosest(std::span<const CollisionObject> objects,
   }
   const DepthSource source = all ? DepthSource::kClosest : DepthSource::kFallback;
   frontier_.clear();  // (free after stage 4): the points without a value
+  tree_objects_.clear();
+  closest_queries_.assign(objects.size(), 0);
   for (int h = 0; h < num_hits; ++h) {
     if (layer_[h] >= 0) continue;
     frontier_.push_back(h);
-    HashRemainingTriangles(objects, hits_[h].penetrated);
+    const int b = hits_[h].penetrated;
+    AddRemainingTriangles(objects, b);
+    // a box tree for the objects with enough queries to pay for it
+    // (building costs about as much as kMinTreeQueries searches of every
+    // triangle: a coarse box's one corner in a fine ball is cheaper so)
+    if (++closest_queries_[b] == kMinTreeQueries && !object_small_[b]) {
+      object_tree_built_[b] = 1;
+      tree_objects_.push_back(b);
+    }
   }
+  const int num_trees = static_cast<int>(tree_objects_.size());
+  ParallelFor(
+      ThreadsFor(options_.num_threads, num_trees, 1), 0, num_trees,
+      [&](int i) { BuildTree(tree_objects_[i]); }, Schedule::kDynamic, 1);
   const int num_pending = static_cast<int>(frontier_.size());
   ParallelFor(
       ThreadsFor(options_.num_threads, num_pending, 16), 0, num_pending,

@@ -36,6 +36,7 @@
 #include <span>
 #include <vector>
 
+#include "collision/box_tree.h"
 #include "collision/spatial_hash.h"
 #include "mesh/tet_mesh.h"
 
@@ -207,9 +208,12 @@ class PenetrationSolver {
   // gives each a range of entries; returns the number of entries.
   int PlaceSurfaces(std::span<const CollisionObject> objects, bool full);
   void HashSurface(std::span<const CollisionObject> objects, int object);
-  // adds the triangles of object b that HashSurfaces left out (for closest
-  // features, which may lie outside the region where objects overlap)
-  void HashRemainingTriangles(std::span<const CollisionObject> objects, int b);
+  // adds entries for the triangles of object b that HashSurfaces left out
+  // (for closest features, which may lie outside the region where objects
+  // overlap), once per solve
+  void AddRemainingTriangles(std::span<const CollisionObject> objects, int b);
+  // object b's box tree over all its entries (closest features)
+  void BuildTree(int b);
   // which of an object's surface triangles: all, those in its search box
   // (where intersection edges can cross them), the others
   enum class TriangleRegion { kAll, kInside, kOutside };
@@ -283,7 +287,7 @@ class PenetrationSolver {
 
   // the entries, by object: each object's range is the size of its
   // surface, its entries in play at the start; those added for closest
-  // features (HashRemainingTriangles) come after every object's range
+  // features (AddRemainingTriangles) come after every object's range
   std::vector<TriangleEntry> triangles_;
   std::vector<TriangleGeometry> triangle_geometry_;  // per entry
   // small objects' entries by coordinate, in entry order (stage 2 tests
@@ -313,6 +317,11 @@ class PenetrationSolver {
     SpatialHash hash;
     BucketBoxes boxes;
     std::vector<int> large;
+    // closest features: a box tree over all the object's entries (item i:
+    // entry tree_entry[i], box [tree_lo[i], tree_hi[i]])
+    BoxTree tree;
+    std::vector<Eigen::Vector3d> tree_lo, tree_hi;
+    std::vector<int> tree_entry;
   };
   std::vector<ObjectTriangles> object_triangles_;  // #objects
   std::vector<int> object_builder_;                // #objects: the thread that made its entries
@@ -324,8 +333,10 @@ class PenetrationSolver {
   std::vector<char> object_small_;  // #objects: surface tested directly, not hashed
   std::vector<int> object_entry_begin_, object_entry_end_;  // #objects: its triangle entries
   std::vector<int> object_rest_begin_, object_rest_end_;    // #objects: those added for closest
-                                                            // features (HashRemainingTriangles)
-  std::vector<Eigen::Vector3i> object_cell_lo_, object_cell_hi_;  // #objects: bounding box in cells
+                                                            // features (AddRemainingTriangles)
+  std::vector<char> object_tree_built_;                     // #objects: its box tree, this solve
+  std::vector<int> tree_objects_;     // the objects whose box trees a solve builds
+  std::vector<int> closest_queries_;  // #objects: closest-feature queries into it
 
   // stage 2 on several threads: the hits grouped by the thread that made
   // their penetrated object's entries, and the groups' offsets

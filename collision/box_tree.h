@@ -1,0 +1,101 @@
+#pragma once
+
+// A bounding-volume hierarchy over axis-aligned boxes, for nearest-item
+// queries: the closest-feature search over a body's surface triangles.
+//
+// Build splits the items at the median of their box centres along the
+// longest axis of those centres' bounds, down to leaves of at most
+// kLeafSize items (a binary tree, nodes in depth-first order). A query
+// visits the nearer child first and passes over every node whose box is
+// farther from the point than the best distance so far, so it reads about
+// log(n) nodes where a grid search reads every cell within that distance
+// (for a point deep inside a finely meshed body: thousands).
+//
+// Deterministic (std::nth_element on the same input makes the same tree)
+// and allocation-free once warm: storage only grows.
+
+#include <Eigen/Core>
+#include <algorithm>
+#include <span>
+#include <vector>
+
+namespace tetcosim {
+
+class BoxTree {
+ public:
+  static constexpr int kLeafSize = 4;
+
+  // Builds the tree over items 0 .. n - 1 with boxes [lo[i], hi[i]].
+  void Build(std::span<const Eigen::Vector3d> lo, std::span<const Eigen::Vector3d> hi);
+
+  int num_items() const { return static_cast<int>(items_.size()); }
+
+  // Calls visit(item) for the items that may lie within sqrt(best) of p,
+  // nearer subtrees first; visit may lower best (a squared distance), which
+  // prunes what is left. Items whose box is farther than best are never
+  // visited.
+  template <typename Visit>
+  void Nearest(const Eigen::Vector3d& p, double& best, Visit&& visit) const {
+    if (nodes_.empty()) return;
+    // (depth-first: the stack holds at most one node per level)
+    int stack[kMaxDepth];
+    double stack_distance[kMaxDepth];
+    int top = 0;
+    int node = 0;
+    double distance = Distance2(nodes_[0], p);
+    for (;;) {
+      if (distance <= best) {
+        const Node& n = nodes_[node];
+        if (n.count > 0) {
+          for (int i = n.first; i < n.first + n.count; ++i) {
+            if (Distance2(item_lo_[i], item_hi_[i], p) <= best) visit(items_[i]);
+          }
+        } else {
+          const int left = node + 1;
+          const int right = n.first;
+          const double d_left = Distance2(nodes_[left], p);
+          const double d_right = Distance2(nodes_[right], p);
+          const bool left_first = d_left <= d_right;
+          stack[top] = left_first ? right : left;
+          stack_distance[top++] = left_first ? d_right : d_left;
+          node = left_first ? left : right;
+          distance = left_first ? d_left : d_right;
+          continue;
+        }
+      }
+      if (top == 0) return;
+      node = stack[--top];
+      distance = stack_distance[top];
+    }
+  }
+
+ private:
+  // (median splits halve the items: 64 levels hold any int count)
+  static constexpr int kMaxDepth = 64;
+  struct Node {
+    Eigen::Vector3d lo, hi;
+    int first;  // leaf: its first entry in items_; inner: its right child
+    int count;  // leaf: its number of items; inner: 0 (left child: the next node)
+  };
+  static double Distance2(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi,
+                          const Eigen::Vector3d& p) {
+    return (lo - p).cwiseMax(p - hi).cwiseMax(0.0).squaredNorm();
+  }
+  static double Distance2(const Node& node, const Eigen::Vector3d& p) {
+    return Distance2(node.lo, node.hi, p);
+  }
+  // builds the subtree over order_[begin, end) and returns its node (its
+  // box is set by Build, from its children's)
+  int BuildNode(int begin, int end);
+
+  struct Centre {  // an item's box centre, sorted in place while building
+    Eigen::Vector3d centre;
+    int item;
+  };
+  std::vector<Node> nodes_;
+  std::vector<Centre> order_;                       // (during Build)
+  std::vector<int> items_;                          // the items, leaf by leaf
+  std::vector<Eigen::Vector3d> item_lo_, item_hi_;  // their boxes, in items_' order
+};
+
+}  // namespace tetcosim
