@@ -354,14 +354,20 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
     const Positions& x = *objects[o].positions;
     Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
     Eigen::Vector3d hi = -lo;
-    Eigen::Vector3d non_finite = Eigen::Vector3d::Zero();  // stays 0 for finite positions
+    // the bits of p - p, or-ed: +0 (no bit set) for finite coordinates,
+    // NaN's for infinite or NaN ones (summing p - p instead, a chain of
+    // adds, made the hash stage slower: 5.8 against 5.0 us on the 70%
+    // cubes)
+    std::uint64_t non_finite = 0;
     for (int v = 0; v < x.rows(); ++v) {
       const Eigen::Vector3d p = x.row(v).transpose();
       lo = lo.cwiseMin(p);
       hi = hi.cwiseMax(p);
-      non_finite += p - p;  // (NaN for an infinite or NaN coordinate)
+      non_finite |= std::bit_cast<std::uint64_t>(p.x() - p.x()) |
+                    std::bit_cast<std::uint64_t>(p.y() - p.y()) |
+                    std::bit_cast<std::uint64_t>(p.z() - p.z());
     }
-    if (!(non_finite.array() == 0.0).all()) {
+    if (non_finite != 0) {
       // left out: an empty box meets no other, and sorts last
       ++stats_.non_finite_objects;
       lo.setConstant(std::numeric_limits<double>::infinity());
