@@ -1,7 +1,8 @@
 #pragma once
 
 // A bounding-volume hierarchy over axis-aligned boxes, for nearest-item
-// queries: the closest-feature search over a body's surface triangles.
+// queries (the closest-feature search over a body's surface triangles) and
+// overlap queries (stage 2's segments against triangles too large to hash).
 //
 // Build splits the items at the median of their box centres along the
 // longest axis of those centres' bounds, down to leaves of at most
@@ -29,6 +30,29 @@ class BoxTree {
   void Build(std::span<const Eigen::Vector3d> lo, std::span<const Eigen::Vector3d> hi);
 
   int num_items() const { return static_cast<int>(items_.size()); }
+
+  // Calls visit(item) for every item whose box meets [lo, hi] (closed
+  // boxes: touching counts), in no particular order.
+  template <typename Visit>
+  void Overlapping(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, Visit&& visit) const {
+    if (nodes_.empty()) return;
+    int stack[kMaxDepth];
+    int top = 0;
+    stack[top++] = 0;
+    while (top > 0) {
+      const int node = stack[--top];
+      const Node& n = nodes_[node];
+      if (!Meets(n.lo, n.hi, lo, hi)) continue;
+      if (n.count > 0) {
+        for (int i = n.first; i < n.first + n.count; ++i) {
+          if (Meets(item_lo_[i], item_hi_[i], lo, hi)) visit(items_[i]);
+        }
+      } else {
+        stack[top++] = n.first;   // the right child
+        stack[top++] = node + 1;  // the left one, first
+      }
+    }
+  }
 
   // Calls visit(item) for the items that may lie within sqrt(best) of p,
   // nearer subtrees first; visit may lower best (a squared distance), which
@@ -80,6 +104,11 @@ class BoxTree {
   static double Distance2(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi,
                           const Eigen::Vector3d& p) {
     return (lo - p).cwiseMax(p - hi).cwiseMax(0.0).squaredNorm();
+  }
+  static bool Meets(const Eigen::Vector3d& lo_a, const Eigen::Vector3d& hi_a,
+                    const Eigen::Vector3d& lo_b, const Eigen::Vector3d& hi_b) {
+    return (lo_a.x() <= hi_b.x()) & (lo_b.x() <= hi_a.x()) & (lo_a.y() <= hi_b.y()) &
+           (lo_b.y() <= hi_a.y()) & (lo_a.z() <= hi_b.z()) & (lo_b.z() <= hi_a.z());
   }
   static double Distance2(const Node& node, const Eigen::Vector3d& p) {
     return Distance2(node.lo, node.hi, p);

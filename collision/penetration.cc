@@ -72,6 +72,10 @@ constexpr int kSmallSurface = 48;
 // at least this many queries in a solve, else all its triangles (a tree
 // costs about as much to build as this many searches of every triangle).
 constexpr int kMinTreeQueries = 32;
+// Stage 2 finds the triangles too large to hash that a segment meets
+// through a box tree when an object has more than this many, else by
+// testing each (a coarse floor mesh under fine bodies has thousands).
+constexpr int kMaxLargeListed = 16;
 
 // (all six comparisons, combined without branches: in the hot loops the
 // outcome is close to random, and mispredicted branches cost more)
@@ -1027,6 +1031,15 @@ void PenetrationSolver::InsertTriangle(int index) {
 
 void PenetrationSolver::BuildTriangleHash(int object) {
   ObjectTriangles& hashed = object_triangles_[object];
+  hashed.large_lo.clear();
+  hashed.large_hi.clear();
+  if (static_cast<int>(hashed.large.size()) > kMaxLargeListed) {
+    for (int index : hashed.large) {
+      hashed.large_lo.push_back(triangles_[index].lo);
+      hashed.large_hi.push_back(triangles_[index].hi);
+    }
+  }
+  hashed.large_tree.Build(hashed.large_lo, hashed.large_hi);  // (empty if few)
   hashed.hash.Build();
   const int num_entries = hashed.hash.num_items();
   const std::span<const int> items = hashed.hash.items();
@@ -1156,9 +1169,14 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
         }
       } else {
         const ObjectTriangles& hashed = object_triangles_[b];
-        for (int index : hashed.large) {
-          const TriangleEntry& entry = triangles_[index];
-          if (BoxesOverlap(entry.lo, entry.hi, segment_lo, segment_hi)) test_triangle(index);
+        if (hashed.large_tree.num_items() > 0) [[unlikely]] {
+          hashed.large_tree.Overlapping(segment_lo, segment_hi,
+                                        [&](int item) { test_triangle(hashed.large[item]); });
+        } else {
+          for (int index : hashed.large) {
+            const TriangleEntry& entry = triangles_[index];
+            if (BoxesOverlap(entry.lo, entry.hi, segment_lo, segment_hi)) test_triangle(index);
+          }
         }
         // the boxes of the buckets of the segment's cells, four at a
         // time; a triangle covering several of those cells is met in

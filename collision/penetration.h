@@ -317,6 +317,10 @@ class PenetrationSolver {
     SpatialHash hash;
     BucketBoxes boxes;
     std::vector<int> large;
+    // stage 2: a box tree over the large entries when they are many (item
+    // i: entry large[i]), else empty
+    BoxTree large_tree;
+    std::vector<Eigen::Vector3d> large_lo, large_hi;
     // closest features: a box tree over all the object's entries (item i:
     // entry tree_entry[i], box [tree_lo[i], tree_hi[i]])
     BoxTree tree;

@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <limits>
 #include <random>
 #include <vector>
@@ -64,6 +65,35 @@ TEST(BoxTree, NearestMatchesBruteForce) {
         });
         EXPECT_EQ(best, expected) << "n " << n << " query " << q;
         for (int v : visits) EXPECT_LE(v, 1);
+      }
+    }
+  }
+}
+
+// The boxes meeting a query box, by the tree and by testing every box:
+// the same set, each item once (closed boxes: touching counts).
+TEST(BoxTree, OverlappingMatchesBruteForce) {
+  std::mt19937 rng(13);
+  std::uniform_real_distribution<double> corner(-0.2, 1.2), size(0.0, 0.3);
+  for (int n : {0, 1, 5, 64, 1000}) {
+    for (bool same_centre : {false, true}) {
+      const Boxes boxes = RandomBoxes(n, rng, same_centre);
+      BoxTree tree;
+      tree.Build(boxes.lo, boxes.hi);
+      for (int q = 0; q < 200; ++q) {
+        Eigen::Vector3d lo(corner(rng), corner(rng), corner(rng));
+        Eigen::Vector3d hi = lo + Eigen::Vector3d(size(rng), size(rng), size(rng));
+        if (q == 0 && n > 0) hi = lo = boxes.hi[0];  // a point on a box's corner
+        std::vector<int> expected, found;
+        for (int i = 0; i < n; ++i) {
+          if ((boxes.lo[i].array() <= hi.array()).all() &&
+              (lo.array() <= boxes.hi[i].array()).all()) {
+            expected.push_back(i);
+          }
+        }
+        tree.Overlapping(lo, hi, [&](int item) { found.push_back(item); });
+        std::sort(found.begin(), found.end());
+        EXPECT_EQ(found, expected) << "n " << n << " query " << q;
       }
     }
   }
