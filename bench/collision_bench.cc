@@ -3,8 +3,9 @@
 // overlaps, 120 paper spheres (20 tetrahedra each) packed with many
 // contacts, a scene of about 100k tetrahedra, and 1 to 10 copies of the
 // two-cube scene (cost against the number of colliding points); a coarse
-// box's corner in a fine ball (edges hundreds of cells long), and a ball
-// enclosed in a block (the closest-feature fallback).
+// box's corner in a fine ball (edges hundreds of cells long), a ball
+// enclosed in a block (the closest-feature fallback), and fine cubes on a
+// coarse slab (triangles too large to hash).
 //
 // Counters: colliding points, intersection edges (stage 2), microseconds
 // per colliding point (from the solver's own wall-clock timing of Solve),
@@ -196,6 +197,27 @@ BENCHMARK(BM_EnclosedBall)
     ->ArgsProduct({{1280}, {0, 1}, {1, 2}})
     ->ArgNames({"tets", "closest", "threads"})
     ->Unit(benchmark::kMicrosecond)
+    ->UseRealTime();
+
+// 100 fine cubes (6 cm, 10,368 tetrahedra each) in a 10 x 10 grid, pressed
+// 5 mm into a coarse rigid slab (1 m, 20 x 20 x 1 cells): at the cubes'
+// 5 mm cells the slab's 2400 triangles are all too large to hash
+// (stage 2 finds them through a box tree)
+void BM_CoarseSlab(benchmark::State& state) {
+  Scene scene;
+  scene.Add(scene.Mesh("box:size=0.5,0.5,0.05:res=20,20,1"), Eigen::Vector3d::Zero());
+  scene.objects.back().rigid = true;
+  const TetMesh& cube = scene.Mesh("box:size=0.03:res=12");
+  const int count = static_cast<int>(state.range(0));
+  for (int k = 0; k < count; ++k) {
+    scene.Add(cube, Eigen::Vector3d(-0.45 + 0.1 * (k % 10), -0.45 + 0.1 * (k / 10), 0.075));
+  }
+  Run(state, scene);
+}
+BENCHMARK(BM_CoarseSlab)
+    ->ArgsProduct({{100}, {0, 1}, {1, 2}})
+    ->ArgNames({"cubes", "closest", "threads"})
+    ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
 
 }  // namespace
