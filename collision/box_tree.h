@@ -32,7 +32,7 @@ class BoxTree {
   int num_items() const { return static_cast<int>(items_.size()); }
 
   // Calls visit(item) for every item whose box meets [lo, hi] (closed
-  // boxes: touching counts), in no particular order.
+  // boxes: touching counts), in the tree's order (deterministic).
   template <typename Visit>
   void Overlapping(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, Visit&& visit) const {
     if (nodes_.empty()) return;
