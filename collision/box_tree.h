@@ -20,6 +20,8 @@
 #include <span>
 #include <vector>
 
+#include "collision/geometry.h"
+
 namespace tetcosim {
 
 class BoxTree {
@@ -42,10 +44,10 @@ class BoxTree {
     while (top > 0) {
       const int node = stack[--top];
       const Node& n = nodes_[node];
-      if (!Meets(n.lo, n.hi, lo, hi)) continue;
+      if (!BoxesOverlap(n.lo, n.hi, lo, hi)) continue;
       if (n.count > 0) {
         for (int i = n.first; i < n.first + n.count; ++i) {
-          if (Meets(item_lo_[i], item_hi_[i], lo, hi)) visit(items_[i]);
+          if (BoxesOverlap(item_lo_[i], item_hi_[i], lo, hi)) visit(items_[i]);
         }
       } else {
         stack[top++] = n.first;   // the right child
@@ -72,7 +74,7 @@ class BoxTree {
         const Node& n = nodes_[node];
         if (n.count > 0) {
           for (int i = n.first; i < n.first + n.count; ++i) {
-            if (Distance2(item_lo_[i], item_hi_[i], p) <= best) visit(items_[i]);
+            if (BoxDistance2(item_lo_[i], item_hi_[i], p) <= best) visit(items_[i]);
           }
         } else {
           const int left = node + 1;
@@ -101,17 +103,8 @@ class BoxTree {
     int first;  // leaf: its first entry in items_; inner: its right child
     int count;  // leaf: its number of items; inner: 0 (left child: the next node)
   };
-  static double Distance2(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi,
-                          const Eigen::Vector3d& p) {
-    return (lo - p).cwiseMax(p - hi).cwiseMax(0.0).squaredNorm();
-  }
-  static bool Meets(const Eigen::Vector3d& lo_a, const Eigen::Vector3d& hi_a,
-                    const Eigen::Vector3d& lo_b, const Eigen::Vector3d& hi_b) {
-    return (lo_a.x() <= hi_b.x()) & (lo_b.x() <= hi_a.x()) & (lo_a.y() <= hi_b.y()) &
-           (lo_b.y() <= hi_a.y()) & (lo_a.z() <= hi_b.z()) & (lo_b.z() <= hi_a.z());
-  }
   static double Distance2(const Node& node, const Eigen::Vector3d& p) {
-    return Distance2(node.lo, node.hi, p);
+    return BoxDistance2(node.lo, node.hi, p);
   }
   // builds the subtree over order_[begin, end) and returns its node (its
   // box is set by Build, from its children's)

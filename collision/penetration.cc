@@ -77,14 +77,6 @@ constexpr int kMinTreeQueries = 32;
 // testing each (a coarse floor mesh under fine bodies has thousands).
 constexpr int kMaxLargeListed = 16;
 
-// (all six comparisons, combined without branches: in the hot loops the
-// outcome is close to random, and mispredicted branches cost more)
-bool BoxesOverlap(const Eigen::Vector3d& lo_a, const Eigen::Vector3d& hi_a,
-                  const Eigen::Vector3d& lo_b, const Eigen::Vector3d& hi_b) {
-  return (lo_a.x() <= hi_b.x()) & (lo_b.x() <= hi_a.x()) & (lo_a.y() <= hi_b.y()) &
-         (lo_b.y() <= hi_a.y()) & (lo_a.z() <= hi_b.z()) & (lo_b.z() <= hi_a.z());
-}
-
 // Bit i of the outcode: p lies beyond side i of the box (x below, x above,
 // y below, ...); 0 inside. A set of points whose outcodes share a bit lies
 // beyond one side, and so does their bounding box.
@@ -1380,7 +1372,7 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
     // a coarse box pressed into a fine body, most queries test every one
     // of its large faces)
     const TriangleEntry& entry = triangles_[index];
-    if ((entry.lo - p).cwiseMax(p - entry.hi).cwiseMax(0.0).squaredNorm() > best) return;
+    if (BoxDistance2(entry.lo, entry.hi, p) > best) return;
     const int f = entry.face;
     if (exclude >= 0 &&
         (surface(f, 0) == exclude || surface(f, 1) == exclude || surface(f, 2) == exclude)) {
