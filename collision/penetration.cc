@@ -826,7 +826,6 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
 int PenetrationSolver::PlaceSurfaces(std::span<const CollisionObject> objects, bool full) {
   const int num_objects = static_cast<int>(objects.size());
   object_fully_hashed_.assign(num_objects, 0);
-  object_tree_built_.assign(num_objects, 0);
   object_small_.assign(num_objects, 0);
   object_entry_begin_.assign(num_objects, 0);
   object_entry_end_.assign(num_objects, 0);
@@ -1394,7 +1393,7 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
   // the object's box tree over all its triangles if ComputeClosest built
   // it (nearer boxes first, those farther than the best passed over), else
   // every triangle
-  if (object_tree_built_[b]) {
+  if (closest_queries_[b] >= kMinTreeQueries) {
     const ObjectTriangles& hashed = object_triangles_[b];
     hashed.tree.Nearest(p, best, [&](int item) { test(hashed.tree_entry[item]); });
   } else {
@@ -1427,7 +1426,6 @@ void PenetrationSolver::ComputeClosest(std::span<const CollisionObject> objects,
     // (building costs about as much as kMinTreeQueries searches of every
     // triangle: a coarse box's one corner in a fine ball is cheaper so)
     if (++closest_queries_[b] == kMinTreeQueries && !object_small_[b]) {
-      object_tree_built_[b] = 1;
       tree_objects_.push_back(b);
     }
   }

@@ -338,9 +338,9 @@ class PenetrationSolver {
   std::vector<int> object_entry_begin_, object_entry_end_;  // #objects: its triangle entries
   std::vector<int> object_rest_begin_, object_rest_end_;    // #objects: those added for closest
                                                             // features (AddRemainingTriangles)
-  std::vector<char> object_tree_built_;                     // #objects: its box tree, this solve
   std::vector<int> tree_objects_;     // the objects whose box trees a solve builds
-  std::vector<int> closest_queries_;  // #objects: closest-feature queries into it
+  std::vector<int> closest_queries_;  // #objects: closest-feature queries into it (a box tree
+                                      // from kMinTreeQueries, small objects aside)
 
   // stage 2 on several threads: the hits grouped by the thread that made
   // their penetrated object's entries, and the groups' offsets
