@@ -5,7 +5,8 @@
 // two-cube scene (cost against the number of colliding points); a coarse
 // box's corner in a fine ball (edges hundreds of cells long), a ball
 // enclosed in a block (the closest-feature fallback), and fine cubes on a
-// coarse slab (triangles too large to hash).
+// coarse slab (triangles too large to hash) and on a less coarse one
+// (tetrahedra too large to search cell by cell).
 //
 // Counters: colliding points, intersection edges (stage 2), microseconds
 // per colliding point (from the solver's own wall-clock timing of Solve),
@@ -200,12 +201,15 @@ BENCHMARK(BM_EnclosedBall)
     ->UseRealTime();
 
 // 100 fine cubes (6 cm, 10,368 tetrahedra each) in a 10 x 10 grid, pressed
-// 5 mm into a coarse rigid slab (1 m, 20 x 20 x 1 cells): at the cubes'
-// 5 mm cells the slab's 2400 triangles are all too large to hash
-// (stage 2 finds them through a box tree)
-void BM_CoarseSlab(benchmark::State& state) {
+// 5 mm into a coarse rigid slab (1 m): on a slab of 20 x 20 x 1 cells, the
+// slab's 2400 triangles are all too large to hash at the cubes' 5 mm cells
+// (stage 2 finds them through a box tree); on one of 10 x 10 x 2 cells,
+// the 288 tetrahedra that reach the cubes each cover more than 512 of the
+// cubes' cells (stage 1 searches them through a coarser grid of the
+// cubes' vertices)
+void SlabUnderCubes(benchmark::State& state, const std::string& slab) {
   Scene scene;
-  scene.Add(scene.Mesh("box:size=0.5,0.5,0.05:res=20,20,1"), Eigen::Vector3d::Zero());
+  scene.Add(scene.Mesh(slab), Eigen::Vector3d::Zero());
   scene.objects.back().rigid = true;
   const TetMesh& cube = scene.Mesh("box:size=0.03:res=12");
   const int count = static_cast<int>(state.range(0));
@@ -214,7 +218,18 @@ void BM_CoarseSlab(benchmark::State& state) {
   }
   Run(state, scene);
 }
+void BM_CoarseSlab(benchmark::State& state) {
+  SlabUnderCubes(state, "box:size=0.5,0.5,0.05:res=20,20,1");
+}
+void BM_MediumSlab(benchmark::State& state) {
+  SlabUnderCubes(state, "box:size=0.5,0.5,0.05:res=10,10,2");
+}
 BENCHMARK(BM_CoarseSlab)
+    ->ArgsProduct({{100}, {0, 1}, {1, 2}})
+    ->ArgNames({"cubes", "closest", "threads"})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+BENCHMARK(BM_MediumSlab)
     ->ArgsProduct({{100}, {0, 1}, {1, 2}})
     ->ArgNames({"cubes", "closest", "threads"})
     ->Unit(benchmark::kMillisecond)

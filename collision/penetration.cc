@@ -33,9 +33,14 @@ double SecondsSince(Clock::time_point start) {
 // Triangles whose bounding box covers more cells than this are not hashed but
 // tested against every query (large faces of coarse rigid proxies).
 constexpr long kMaxTriangleCells = 64;
-// Tetrahedra whose bounding box covers more cells than this test candidate
-// vertices directly instead of cell by cell.
+// Tetrahedra whose bounding box covers more cells than this are searched
+// apart (SearchLargeTets), not cell by cell.
 constexpr long kMaxTetCells = 512;
+// From this many such tetrahedra in a solve, their vertices go into a
+// coarser grid first (its cells kCoarseCellFactor times the size): the
+// grid costs about as much as this many tets testing every hashed vertex.
+constexpr int kMinCoarseLargeTets = 32;
+constexpr double kCoarseCellFactor = 8.0;
 // Stage 2 tests every entry of a triangle hash, four boxes at a time, instead
 // of looking up a segment's cells when the segment covers more cells than
 // the hash has entries over this (a cell's lookup costs about as much as
@@ -76,6 +81,12 @@ constexpr int kMinTreeQueries = 32;
 // through a box tree when an object has more than this many, else by
 // testing each (a coarse floor mesh under fine bodies has thousands).
 constexpr int kMaxLargeListed = 16;
+
+// Whether stage 1 tests the vertices of object a against the tetrahedra of
+// object b (a vertex in b's search box may be of any object).
+bool MayPenetrate(std::span<const CollisionObject> objects, int a, int b) {
+  return a == b ? objects[b].self_collision : !(objects[a].rigid && objects[b].rigid);
+}
 
 // Bit i of the outcode: p lies beyond side i of the box (x below, x above,
 // y below, ...); 0 inside. A set of points whose outcodes share a bit lies
@@ -455,6 +466,7 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
   ParallelFor(
       ThreadsFor(num_threads, num_searched, kMinChunksPerThread), 0, num_searched,
       [&](int chunk) { SearchChunk(objects, chunk); }, Schedule::kDynamic, kChunksPerGrab);
+  SearchLargeTets(objects);
   MergeHits();
   timings_.inside += SecondsSince(start);
 }
@@ -502,6 +514,7 @@ void PenetrationSolver::FindCollidingPointsAndHashSurfaces(std::span<const Colli
 #pragma omp for schedule(dynamic, kChunksPerGrab) nowait
     for (int chunk = 0; chunk < num_searched; ++chunk) SearchChunk(objects, chunk);
   }
+  SearchLargeTets(objects);
   MergeHits();
   // the stages overlap: the wall time is split where the hash was built
   // and where the last surface was made
@@ -580,7 +593,10 @@ int PenetrationSolver::BeginSearch(std::span<const CollisionObject> objects, int
   bool any_deformable = false;  // (only rigid objects: no pair to test)
   for (const CollisionObject& object : objects) any_deformable |= !object.rigid;
   if (static_cast<int>(thread_scratch_.size()) < num_threads) thread_scratch_.resize(num_threads);
-  for (ThreadScratch& scratch : thread_scratch_) scratch.hits.clear();
+  for (ThreadScratch& scratch : thread_scratch_) {
+    scratch.hits.clear();
+    scratch.large_tets.clear();
+  }
   return any_deformable ? chunk_offset_[num_objects] : 0;
 }
 
@@ -593,7 +609,6 @@ int PenetrationSolver::BeginSearch(std::span<const CollisionObject> objects, int
 // of a partner object: nothing can be inside.)
 void PenetrationSolver::SearchChunk(std::span<const CollisionObject> objects, int gc) {
   ThreadScratch& scratch = thread_scratch_[omp_get_thread_num()];
-  const int num_entries = hash_.num_items();
   std::vector<Hit>& found = scratch.hits;
   HashedVertices& gathered = scratch.gathered;
   const int b = static_cast<int>(std::upper_bound(chunk_offset_.begin(), chunk_offset_.end(), gc) -
@@ -605,14 +620,7 @@ void PenetrationSolver::SearchChunk(std::span<const CollisionObject> objects, in
   const int last = gc + 1 == chunk_offset_[b + 1] ? object_b.mesh->num_tets() : first + kChunkTets;
   // the chunk's tets whose boxes meet B's search box, and the union
   // of their boxes
-  struct ChunkTet {
-    int t;
-    Eigen::Vector3d corner[4];
-    Eigen::Vector3d lo, hi;
-    TetCoordinates coordinates;  // set at the first vertex in the box
-    bool have_coordinates;
-  };
-  std::array<ChunkTet, 2 * kChunkTets - 1> chunk;
+  std::array<SearchedTet, 2 * kChunkTets - 1> chunk;
   int chunk_size = 0;
   const double inf = std::numeric_limits<double>::infinity();
   Eigen::Vector3d union_lo = Eigen::Vector3d::Constant(inf);
@@ -623,7 +631,7 @@ void PenetrationSolver::SearchChunk(std::span<const CollisionObject> objects, in
   const std::uint8_t* outcode = vertex_outcode_.data() + vertex_offset_[b];
   for (int n = first; n < last; ++n) {
     const int t = order[n];
-    ChunkTet& tet = chunk[chunk_size];
+    SearchedTet& tet = chunk[chunk_size];
     const auto vertices = object_b.mesh->tets().row(t);
     if ((outcode[vertices[0]] & outcode[vertices[1]] & outcode[vertices[2]] &
          outcode[vertices[3]]) != 0) {
@@ -639,35 +647,16 @@ void PenetrationSolver::SearchChunk(std::span<const CollisionObject> objects, in
     ++chunk_size;
   }
   if (chunk_size == 0) return;
-  // entry e, a vertex of object A (a partner of B) in the tet's box:
-  // inside the tet?
-  auto test = [&](ChunkTet& tet, int e, int a) {
-    if (a == b) {  // self-collision: not the tet's own vertices
-      const int v = hashed_.vertex[e] - vertex_offset_[a];
-      const auto vertices = object_b.mesh->tets().row(tet.t);
-      if (v == vertices[0] || v == vertices[1] || v == vertices[2] || v == vertices[3]) {
-        return;
-      }
-    }
-    if (!tet.have_coordinates) {
-      tet.coordinates = TetCoordinates(tet.corner[0], tet.corner[1], tet.corner[2], tet.corner[3]);
-      tet.have_coordinates = true;
-    }
-    if (tet.coordinates.degenerate()) return;
-    const Eigen::Vector4d l =
-        tet.coordinates(Eigen::Vector3d(hashed_.x[e], hashed_.y[e], hashed_.z[e]));
-    // (kBarycentricTolerance: a vertex on a face shared by two tets is
-    // inside both in exact arithmetic, but rounding may put it just
-    // outside each; the deepest tet is kept below)
-    if (l.minCoeff() >= -kBarycentricTolerance) found.push_back({hashed_.vertex[e], b, tet.t, l});
+  auto test = [&](SearchedTet& tet, int e, int a) {
+    TestVertexInTet(*object_b.mesh, b, tet, e, a, found);
   };
   // every tet tests the vertices in [lo, hi] (the region where the
-  // vertices of a partner, or of all partners, can be) stored under
-  // `key`; object_of(e) is the partner A of entry e, or -1 to pass it
-  // over (a bucket may also hold vertices of other cells and objects
-  // hashed to it, and a vertex may be met twice when two cells share a
-  // bucket: duplicates are dropped below)
-  auto search = [&](const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, int key,
+  // vertices of partner entry `partner`, or of all partners (-1), can be)
+  // stored under `key`; object_of(e) is the partner A of entry e, or -1 to
+  // pass it over (a bucket may also hold vertices of other cells and
+  // objects hashed to it, and a vertex may be met twice when two cells
+  // share a bucket: duplicates are dropped in MergeHits)
+  auto search = [&](const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, int partner, int key,
                     auto&& object_of) {
     const Eigen::Vector3d region_lo = union_lo.cwiseMax(lo);
     const Eigen::Vector3d region_hi = union_hi.cwiseMin(hi);
@@ -688,22 +677,20 @@ void PenetrationSolver::SearchChunk(std::span<const CollisionObject> objects, in
     };
     if (CellCount(cell_lo, cell_hi) > kMaxChunkCells) {
       for (int c = 0; c < chunk_size; ++c) {  // tet by tet
-        ChunkTet& tet = chunk[c];
+        SearchedTet& tet = chunk[c];
         const Eigen::Vector3d tet_lo = tet.lo.cwiseMax(lo);
         const Eigen::Vector3d tet_hi = tet.hi.cwiseMin(hi);
         if ((tet_lo.array() > tet_hi.array()).any()) continue;
-        const Box4 box(tet_lo, tet_hi);
-        auto visit = [&](int e) {
-          const int a = object_of(e);
-          if (a >= 0) test(tet, e, a);
-        };
         const Eigen::Vector3i from = Cell(tet_lo);
         const Eigen::Vector3i to = Cell(tet_hi);
         if (CellCount(from, to) > kMaxTetCells) {
-          box.ForEachInside(hashed_, 0, num_entries, visit);
-        } else {
-          for_each_in_cells(from, to, box, visit);
+          scratch.large_tets.push_back({b, tet.t, partner});
+          continue;
         }
+        for_each_in_cells(from, to, Box4(tet_lo, tet_hi), [&](int e) {
+          const int a = object_of(e);
+          if (a >= 0) test(tet, e, a);
+        });
       }
       return;
     }
@@ -728,7 +715,7 @@ void PenetrationSolver::SearchChunk(std::span<const CollisionObject> objects, in
     ResizePadded(gathered.y, num_gathered);
     ResizePadded(gathered.z, num_gathered);
     for (int c = 0; c < chunk_size; ++c) {
-      ChunkTet& tet = chunk[c];
+      SearchedTet& tet = chunk[c];
       const Eigen::Vector3d tet_lo = tet.lo.cwiseMax(lo);
       const Eigen::Vector3d tet_hi = tet.hi.cwiseMin(hi);
       if ((tet_lo.array() > tet_hi.array()).any()) continue;
@@ -739,9 +726,8 @@ void PenetrationSolver::SearchChunk(std::span<const CollisionObject> objects, in
   };
   if (partner_offset_[b + 1] - partner_offset_[b] > kMaxKeyedPartners) {
     // all vertices in B's search box
-    search(search_lo_[b], search_hi_[b], 0, [&](int e) {
-      const int a = hashed_.object[e];
-      return (a == b ? !object_b.self_collision : object_b.rigid && objects[a].rigid) ? -1 : a;
+    search(search_lo_[b], search_hi_[b], -1, 0, [&](int e) {
+      return MayPenetrate(objects, hashed_.object[e], b) ? hashed_.object[e] : -1;
     });
     return;
   }
@@ -749,7 +735,117 @@ void PenetrationSolver::SearchChunk(std::span<const CollisionObject> objects, in
     // partner A's vertices inside B lie in the overlap of their boxes
     const Partner& partner = partners_[i];
     const int a = partner.object;
-    search(partner.lo, partner.hi, a + 1, [&](int e) { return hashed_.object[e] == a ? a : -1; });
+    search(partner.lo, partner.hi, i, a + 1,
+           [&](int e) { return hashed_.object[e] == a ? a : -1; });
+  }
+}
+
+void PenetrationSolver::TestVertexInTet(const TetMesh& mesh_b, int b, SearchedTet& tet, int e,
+                                        int a, std::vector<Hit>& found) const {
+  if (a == b) {  // self-collision: not the tet's own vertices
+    const int v = hashed_.vertex[e] - vertex_offset_[a];
+    const auto vertices = mesh_b.tets().row(tet.t);
+    if (v == vertices[0] || v == vertices[1] || v == vertices[2] || v == vertices[3]) return;
+  }
+  if (!tet.have_coordinates) {
+    tet.coordinates = TetCoordinates(tet.corner[0], tet.corner[1], tet.corner[2], tet.corner[3]);
+    tet.have_coordinates = true;
+  }
+  if (tet.coordinates.degenerate()) return;
+  const Eigen::Vector4d l =
+      tet.coordinates(Eigen::Vector3d(hashed_.x[e], hashed_.y[e], hashed_.z[e]));
+  // (kBarycentricTolerance: a vertex on a face shared by two tets is inside
+  // both in exact arithmetic, but rounding may put it just outside each;
+  // MergeHits keeps the deepest tet)
+  if (l.minCoeff() >= -kBarycentricTolerance) found.push_back({hashed_.vertex[e], b, tet.t, l});
+}
+
+// Tetrahedra over more than kMaxTetCells cells (a coarse body's among fine
+// ones) test the vertices in their boxes here, after the chunks: each
+// would look up thousands of cells of the vertex hash. A few test every
+// hashed vertex; from kMinCoarseLargeTets, the vertices go into a grid
+// kCoarseCellFactor times coarser first, whose cells they look up instead
+// (unless a tet covers more of those cells than hashed_ has entries over
+// kEntriesPerCellLookup: then every entry again). The same vertices are
+// tested either way, so the results do not depend on the path.
+void PenetrationSolver::SearchLargeTets(std::span<const CollisionObject> objects) {
+  large_tets_.clear();
+  for (const ThreadScratch& scratch : thread_scratch_) {
+    large_tets_.insert(large_tets_.end(), scratch.large_tets.begin(), scratch.large_tets.end());
+  }
+  const int num_large = static_cast<int>(large_tets_.size());
+  if (num_large == 0) return;
+  const bool coarse = num_large >= kMinCoarseLargeTets;
+  if (coarse) BuildCoarseVertexHash();
+  const int num_entries = hash_.num_items();
+  const int threads = ThreadsFor(options_.num_threads, num_large, 4);
+  if (static_cast<int>(thread_scratch_.size()) < threads) thread_scratch_.resize(threads);
+  ParallelFor(
+      threads, 0, num_large,
+      [&](int n) {
+        const LargeTet& large = large_tets_[n];
+        const int b = large.object;
+        const CollisionObject& object_b = objects[b];
+        const Positions& x = *object_b.positions;
+        SearchedTet tet;
+        tet.t = large.tet;
+        tet.have_coordinates = false;
+        const auto vertices = object_b.mesh->tets().row(large.tet);
+        for (int k = 0; k < 4; ++k) tet.corner[k] = x.row(vertices[k]).transpose();
+        InflatedBounds(tet.corner, tet.lo, tet.hi);
+        // (as in SearchChunk: the tet's box within the region of the
+        // partner's vertices, or of all partners')
+        const Eigen::Vector3d tet_lo =
+            tet.lo.cwiseMax(large.partner >= 0 ? partners_[large.partner].lo : search_lo_[b]);
+        const Eigen::Vector3d tet_hi =
+            tet.hi.cwiseMin(large.partner >= 0 ? partners_[large.partner].hi : search_hi_[b]);
+        const int a_only = large.partner >= 0 ? partners_[large.partner].object : -1;
+        std::vector<Hit>& found = thread_scratch_[omp_get_thread_num()].hits;
+        auto visit = [&](int e) {
+          const int a = hashed_.object[e];
+          if (a_only >= 0 ? a == a_only : MayPenetrate(objects, a, b)) {
+            TestVertexInTet(*object_b.mesh, b, tet, e, a, found);
+          }
+        };
+        const Box4 box(tet_lo, tet_hi);
+        if (coarse) {
+          const Eigen::Vector3i from = coarse_hash_.CellOf(tet_lo);
+          const Eigen::Vector3i to = coarse_hash_.CellOf(tet_hi);
+          if (CellCount(from, to) <= num_entries / kEntriesPerCellLookup) {
+            for (int k = from.z(); k <= to.z(); ++k) {
+              for (int j = from.y(); j <= to.y(); ++j) {
+                for (int i = from.x(); i <= to.x(); ++i) {
+                  const SpatialHash::Range range = coarse_hash_.Find({i, j, k});
+                  box.ForEachInside(coarse_, range.begin, range.end,
+                                    [&](int c) { visit(coarse_.vertex[c]); });
+                }
+              }
+            }
+            return;
+          }
+        }
+        box.ForEachInside(hashed_, 0, num_entries, visit);
+      },
+      Schedule::kDynamic, 4);
+}
+
+void PenetrationSolver::BuildCoarseVertexHash() {
+  const int num_entries = hash_.num_items();
+  coarse_hash_.Reset(kCoarseCellFactor * cell_size_, num_entries);
+  for (int e = 0; e < num_entries; ++e) {
+    coarse_hash_.Insert(coarse_hash_.CellOf({hashed_.x[e], hashed_.y[e], hashed_.z[e]}), e);
+  }
+  coarse_hash_.Build();
+  ResizePadded(coarse_.x, num_entries);
+  ResizePadded(coarse_.y, num_entries);
+  ResizePadded(coarse_.z, num_entries);
+  coarse_.vertex.resize(num_entries);
+  for (int c = 0; c < num_entries; ++c) {
+    const int e = coarse_hash_.items()[c];
+    coarse_.x[c] = hashed_.x[e];
+    coarse_.y[c] = hashed_.y[e];
+    coarse_.z[c] = hashed_.z[e];
+    coarse_.vertex[c] = e;
   }
 }
 

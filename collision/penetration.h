@@ -37,6 +37,7 @@
 #include <vector>
 
 #include "collision/box_tree.h"
+#include "collision/geometry.h"
 #include "collision/spatial_hash.h"
 #include "mesh/tet_mesh.h"
 
@@ -172,18 +173,37 @@ class PenetrationSolver {
     double edge_lengths;               // |edge[0]| |edge[1]|
     Eigen::Vector3i cell_lo, cell_hi;  // the cells the box covers
   };
+  // a tetrahedron of object B searched in stage 1: its corners and box, and
+  // its barycentric coordinates once a vertex in its box needs them
+  struct SearchedTet {
+    int t;
+    Eigen::Vector3d corner[4];
+    Eigen::Vector3d lo, hi;
+    TetCoordinates coordinates;
+    bool have_coordinates;
+  };
+  // stage 1: a tetrahedron whose box covers more than kMaxTetCells cells,
+  // searched after the chunks (SearchLargeTets): its object and index, and
+  // whose vertices it tests (partner: an index into partners_, or -1 for
+  // every partner's)
+  struct LargeTet {
+    int object;
+    int tet;
+    int partner;
+  };
   // What one thread of a parallel stage writes, on cache lines of its own:
   // in a plain array, neighbouring threads' vector headers share a line,
   // and every push_back (which moves the end pointer) would take that line
   // away from the other core (measured: stage 1 on two threads did 24%
   // more work in all than on one).
   struct alignas(64) ThreadScratch {
-    std::vector<Hit> hits;            // stage 1: what the thread found
-    HashedVertices gathered;          // stage 1: a tet chunk's candidates (vertex:
-                                      // the entry in hashed_)
-    std::vector<int> faces;           // surfaces: an object's faces in play
-    std::vector<std::uint32_t> seen;  // stage 2: per triangle entry, the query
-                                      // in which it was last tested
+    std::vector<Hit> hits;             // stage 1: what the thread found
+    HashedVertices gathered;           // stage 1: a tet chunk's candidates (vertex:
+                                       // the entry in hashed_)
+    std::vector<LargeTet> large_tets;  // stage 1: met in the chunks, searched after
+    std::vector<int> faces;            // surfaces: an object's faces in play
+    std::vector<std::uint32_t> seen;   // stage 2: per triangle entry, the query
+                                       // in which it was last tested
     std::uint32_t query = 0;
     int edges = 0;                // stage 2: intersection edges met
     std::vector<int> candidates;  // stage 4: points next to the layer's points,
@@ -202,6 +222,15 @@ class PenetrationSolver {
   void BuildVertexHash();
   int BeginSearch(std::span<const CollisionObject> objects, int num_threads);
   void SearchChunk(std::span<const CollisionObject> objects, int chunk);
+  // Entry e of hashed_, a vertex of object a: inside tet of object b?
+  // Adds the hit to `found`.
+  void TestVertexInTet(const TetMesh& mesh_b, int b, SearchedTet& tet, int e, int a,
+                       std::vector<Hit>& found) const;
+  // the large tetrahedra the chunks met, against the vertices in their
+  // boxes: through coarse_hash_ when they are many, else each against
+  // every entry of hashed_
+  void SearchLargeTets(std::span<const CollisionObject> objects);
+  void BuildCoarseVertexHash();
   void MergeHits();
   void HashSurfaces(std::span<const CollisionObject> objects, bool full);
   // Sets up the per-object arrays for the objects in surface_list_ and
@@ -281,6 +310,13 @@ class PenetrationSolver {
   std::vector<std::uint8_t> vertex_outcode_;  // #global vertices: the sides of its object's
                                               // search box it lies beyond (0: hashed)
   HashedVertices hashed_;
+  // stage 1's large tetrahedra, when many: hashed_'s entries again, in a
+  // grid kCoarseCellFactor times coarser (a tet of 20^3 cells looks up 27
+  // cells of it), their positions in its bucket order (vertex: the entry
+  // in hashed_)
+  SpatialHash coarse_hash_;
+  HashedVertices coarse_;
+  std::vector<LargeTet> large_tets_;           // every thread's, for SearchLargeTets
   std::vector<ThreadScratch> thread_scratch_;  // #threads
   std::vector<Hit> hits_;                      // sorted by (vertex, penetrated)
   std::vector<int> hit_offset_;                // #global vertices + 1

@@ -7,6 +7,7 @@
 #include <atomic>
 #include <cstdlib>
 #include <new>
+#include <utility>
 
 #include "collision/penetration.h"
 #include "tests/collision/scene_helpers.h"
@@ -35,7 +36,9 @@ namespace {
 // Two overlapping cubes, a ball enclosed in one (closest-feature
 // fallback) and a coarse rigid slab under them (triangles too large to
 // hash: their box tree): after two solves, further solves of the same
-// scene allocate nothing, with either method. One thread: on several, a
+// scene allocate nothing, with either method, at the default cell size
+// and at 2 mm cells (where the slab's tetrahedra are too large to search
+// cell by cell: the coarser vertex grid). One thread: on several, a
 // thread's share of the work varies from solve to solve, and its buffers
 // grow until they hold its largest share.
 TEST(Allocation, WarmSolvesAllocateNothing) {
@@ -44,16 +47,19 @@ TEST(Allocation, WarmSolvesAllocateNothing) {
   scene.Add("box:size=0.05:res=6", {0.07, 0.01, 0.0});
   scene.Add("sphere:size=0.03:res=1", {0.0, 0.0, 0.0});
   scene.Add("box:size=0.5,0.5,0.05:res=20,20,1", {0, 0, -0.09}, /*rigid=*/true);
-  for (DepthMethod method : {DepthMethod::kConsistent, DepthMethod::kClosest}) {
+  for (const auto& [method, cell_size] :
+       {std::pair{DepthMethod::kConsistent, 0.0}, std::pair{DepthMethod::kClosest, 0.0},
+        std::pair{DepthMethod::kConsistent, 0.002}}) {
     PenetrationOptions options;
     options.method = method;
+    options.cell_size = cell_size;
     options.num_threads = 1;
     PenetrationSolver solver(options);
     solver.Solve(scene.objects);
     solver.Solve(scene.objects);
     const long before = allocations.load();
     for (int solve = 0; solve < 3; ++solve) solver.Solve(scene.objects);
-    EXPECT_EQ(allocations.load() - before, 0) << DepthMethodName(method);
+    EXPECT_EQ(allocations.load() - before, 0) << DepthMethodName(method) << " " << cell_size;
     EXPECT_GT(solver.results().size(), 100u);
     if (method == DepthMethod::kConsistent) {
       EXPECT_GT(solver.stats().fallback, 0);

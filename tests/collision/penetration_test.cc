@@ -8,6 +8,7 @@
 #include <map>
 #include <numbers>
 #include <random>
+#include <string>
 #include <tuple>
 
 #include "collision/geometry.h"
@@ -251,6 +252,30 @@ TEST(ConsistentDepth, LongEdgesIntoAFineBodyMatchBruteForce) {
   scene.Add("box:size=0.5,0.5,0.5:res=1", {0, 0, 0});
   scene.Add("sphere:size=0.02:res=3", {0.5, 0.5, 0.5});
   ExpectBorderPointsMatchBruteForce(scene, 0.005);
+}
+
+// Tetrahedra over more than 512 cells (a coarse box half in a finely meshed
+// ball, at cells of 2 mm) are searched after the chunks: a few (box res 1)
+// test every hashed vertex; many (res 3) look up a coarser grid of the
+// vertices, unless one covers more of its cells than there are vertices
+// over four (the same scene 40 times larger: each tet of the box over 10^5
+// of those cells). Every way, the same colliding points as brute force,
+// the box's vertices in the ball and the ball's in the box.
+TEST(CollidingPoints, LargeTetrahedraMatchBruteForce) {
+  for (const auto& [box, ball, cell] :
+       {std::tuple{"box:size=0.06:res=1", "sphere:size=0.05:res=3", 0.002},
+        std::tuple{"box:size=0.06:res=3", "sphere:size=0.05:res=3", 0.002},
+        std::tuple{"box:size=2.4:res=3", "sphere:size=2:res=3", 0.002}}) {
+    SCOPED_TRACE(box);
+    const double size = std::stod(std::string(box).substr(9));
+    TestScene scene;
+    scene.Add(box, {0, 0, 0});
+    scene.Add(ball, {size, 0.1 * size, 0.2 * size});
+    ASSERT_GT(BruteForceInside(scene).size(), 100u);
+    PenetrationOptions options;
+    options.cell_size = cell;
+    ExpectSameCollidingPoints(scene, options);
+  }
 }
 
 // The crowded scene ten thousand kilometres from the origin, with 1 mm
