@@ -1,7 +1,7 @@
 // Penetration solver cost, per stage and per colliding point, for the
 // scenes the collision issue names: two cubes of 1250 tetrahedra at several
 // overlaps, 120 paper spheres (20 tetrahedra each) packed with many
-// contacts, a scene of about 100k tetrahedra, and 1 to 10 copies of the
+// contacts (and a pile of 1200), a scene of about 100k tetrahedra, and 1 to 10 copies of the
 // two-cube scene (cost against the number of colliding points); a coarse
 // box's corner in a fine ball (edges hundreds of cells long), a ball
 // enclosed in a block (the closest-feature fallback), and fine cubes on a
@@ -127,15 +127,19 @@ BENCHMARK(BM_CubePairsScaling)
     ->Unit(benchmark::kMicrosecond)
     ->UseRealTime();
 
-// 120 paper spheres (radius 2 cm, 20 tetrahedra), in a 5 x 4 x 6 lattice
-// spaced 1.5 radii with a seeded jitter: every sphere overlaps its neighbours
+// paper spheres (radius 2 cm, 20 tetrahedra) in a lattice of 6 layers
+// spaced 1.5 radii with a seeded jitter: every sphere overlaps its
+// neighbours; 120 in 5 x 4 x 6 (the paper's scene), and a pile ten times
+// as large, 20 x 10 x 6 (how the cost per point grows with a pile's size)
 void BM_PaperSpheres(benchmark::State& state) {
   Scene scene;
   const TetMesh& sphere = scene.Mesh("sphere:size=0.02:res=0");
+  const int rows = state.range(0) == 120 ? 5 : 20;
+  const int columns = static_cast<int>(state.range(0)) / (6 * rows);
   std::mt19937 rng(2004);
   std::uniform_real_distribution<double> jitter(-0.003, 0.003);
-  for (int i = 0; i < 5; ++i) {
-    for (int j = 0; j < 4; ++j) {
+  for (int i = 0; i < rows; ++i) {
+    for (int j = 0; j < columns; ++j) {
       for (int k = 0; k < 6; ++k) {
         scene.Add(
             sphere,
@@ -147,7 +151,7 @@ void BM_PaperSpheres(benchmark::State& state) {
   Run(state, scene);
 }
 BENCHMARK(BM_PaperSpheres)
-    ->ArgsProduct({{120}, {0, 1}, {1, 2}})
+    ->ArgsProduct({{120, 1200}, {0, 1}, {1, 2}})
     ->ArgNames({"spheres", "closest", "threads"})
     ->Unit(benchmark::kMicrosecond)
     ->UseRealTime();
