@@ -1,25 +1,78 @@
 #include "collision/box_tree.h"
 
+#include <array>
+#include <bit>
 #include <cassert>
 #include <limits>
 
 namespace tetcosim {
 
+namespace {
+
+// 10 bits of v spread to every third bit (bit i to bit 3 i)
+std::uint32_t SpreadBits(std::uint32_t v) {
+  v = (v | v << 16) & 0x030000FFu;
+  v = (v | v << 8) & 0x0300F00Fu;
+  v = (v | v << 4) & 0x030C30C3u;
+  v = (v | v << 2) & 0x09249249u;
+  return v;
+}
+
+// A coordinate's place on a grid of 1024 steps from 0 (NaN: 0).
+std::uint32_t GridStep(double scaled) {
+  return static_cast<std::uint32_t>(scaled >= 0.0 ? std::min(scaled, 1023.0) : 0.0);
+}
+
+}  // namespace
+
 void BoxTree::Build(std::span<const Eigen::Vector3d> lo, std::span<const Eigen::Vector3d> hi) {
   assert(lo.size() == hi.size());
   const int n = static_cast<int>(lo.size());
   nodes_.clear();
-  order_.resize(n);
-  for (int i = 0; i < n; ++i) order_[i] = {0.5 * (lo[i] + hi[i]), i};
   items_.resize(n);
   item_lo_.resize(n);
   item_hi_.resize(n);
   if (n == 0) return;
-  BuildNode(0, n);
-  // the items leaf by leaf, with their boxes; then the nodes' boxes,
-  // children before parents (a node's children come after it)
+  // the centres' bounds, and a grid of cubes over them (the same step on
+  // every axis, so that a flat set of items is cut along its wide axes)
+  const double inf = std::numeric_limits<double>::infinity();
+  Eigen::Vector3d centre_lo = Eigen::Vector3d::Constant(inf);
+  Eigen::Vector3d centre_hi = Eigen::Vector3d::Constant(-inf);
   for (int i = 0; i < n; ++i) {
-    items_[i] = order_[i].item;
+    const Eigen::Vector3d centre = 0.5 * (lo[i] + hi[i]);
+    centre_lo = centre_lo.cwiseMin(centre);
+    centre_hi = centre_hi.cwiseMax(centre);
+  }
+  const double extent = (centre_hi - centre_lo).maxCoeff();
+  const double scale = extent > 0.0 && extent < inf ? 1023.0 / extent : 0.0;
+  codes_.resize(n);
+  codes_scratch_.resize(n);
+  items_scratch_.resize(n);
+  for (int i = 0; i < n; ++i) {
+    const Eigen::Vector3d step = (0.5 * (lo[i] + hi[i]) - centre_lo) * scale;
+    codes_[i] = SpreadBits(GridStep(step.x())) << 2 | SpreadBits(GridStep(step.y())) << 1 |
+                SpreadBits(GridStep(step.z()));
+    items_[i] = i;
+  }
+  // least significant digit first, 10 bits at a time (stable)
+  constexpr int kDigitBits = 10;
+  constexpr std::uint32_t kDigitMask = (1u << kDigitBits) - 1;
+  for (int shift = 0; shift < 3 * kDigitBits; shift += kDigitBits) {
+    std::array<int, (1 << kDigitBits) + 1> start{};
+    for (int i = 0; i < n; ++i) ++start[((codes_[i] >> shift) & kDigitMask) + 1];
+    for (int d = 0; d < (1 << kDigitBits); ++d) start[d + 1] += start[d];
+    for (int i = 0; i < n; ++i) {
+      const int to = start[(codes_[i] >> shift) & kDigitMask]++;
+      codes_scratch_[to] = codes_[i];
+      items_scratch_[to] = items_[i];
+    }
+    codes_.swap(codes_scratch_);
+    items_.swap(items_scratch_);
+  }
+  BuildNode(0, n);
+  // the items' boxes leaf by leaf; then the nodes' boxes, children before
+  // parents (a node's children come after it)
+  for (int i = 0; i < n; ++i) {
     item_lo_[i] = lo[items_[i]];
     item_hi_[i] = hi[items_[i]];
   }
@@ -47,23 +100,16 @@ int BoxTree::BuildNode(int begin, int end) {
     return node;
   }
   nodes_.push_back({unset, unset, -1, 0});
-  const double inf = std::numeric_limits<double>::infinity();
-  Eigen::Vector3d centre_lo = Eigen::Vector3d::Constant(inf);
-  Eigen::Vector3d centre_hi = Eigen::Vector3d::Constant(-inf);
-  for (int i = begin; i < end; ++i) {
-    centre_lo = centre_lo.cwiseMin(order_[i].centre);
-    centre_hi = centre_hi.cwiseMax(order_[i].centre);
+  // where the highest bit in which the run's codes differ turns from 0 to
+  // 1 (the codes are sorted); in the middle if they are all the same
+  int middle = begin + (end - begin) / 2;
+  if (const std::uint32_t differ = codes_[begin] ^ codes_[end - 1]; differ != 0) {
+    const std::uint32_t bit = std::uint32_t{1} << (31 - std::countl_zero(differ));
+    middle = static_cast<int>(
+        std::partition_point(codes_.begin() + begin, codes_.begin() + end,
+                             [bit](std::uint32_t code) { return (code & bit) == 0; }) -
+        codes_.begin());
   }
-  int axis = 0;
-  (centre_hi - centre_lo).maxCoeff(&axis);
-  const int middle = begin + (end - begin) / 2;
-  // (ties in the centres broken by item number: the same tree whatever
-  // the order nth_element leaves them in)
-  std::nth_element(order_.begin() + begin, order_.begin() + middle, order_.begin() + end,
-                   [axis](const Centre& a, const Centre& b) {
-                     const double ca = a.centre[axis], cb = b.centre[axis];
-                     return ca < cb || (ca == cb && a.item < b.item);
-                   });
   BuildNode(begin, middle);  // (the next node: the left child)
   const int right = BuildNode(middle, end);
   nodes_[node].first = right;

@@ -1473,6 +1473,9 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
                                             Eigen::Vector3d& closest) const {
   const Triangles& surface = objects[b].mesh->surface();
   double best = std::numeric_limits<double>::infinity();
+  int best_face = -1;
+  // (of triangles equally near, the lowest face: the result does not
+  // depend on the order the search meets them in, the tree's)
   auto test = [&](int index) {
     // (a triangle whose box is farther than the best cannot be nearer: on
     // a coarse box pressed into a fine body, most queries test every one
@@ -1488,8 +1491,9 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
     Eigen::Vector3d c =
         ClosestPointOnTriangle(p, triangle.corner[0], triangle.corner[1], triangle.corner[2]);
     double d = (c - p).squaredNorm();
-    if (d < best) {
+    if (d < best || (d == best && f < best_face)) {
       best = d;
+      best_face = f;
       closest = c;
     }
   };
