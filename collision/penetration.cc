@@ -988,24 +988,15 @@ void PenetrationSolver::HashSurface(std::span<const CollisionObject> objects, in
   object_entry_end_[o] = object_entry_begin_[o] + static_cast<int>(faces.size());
   long num_pairs = 0;  // (cell, triangle) pairs a hashed object's table will hold
   for (int n = 0; n < static_cast<int>(faces.size()); ++n) {
-    const int index = object_entry_begin_[o] + n;
-    TriangleEntry& entry = triangles_[index];
-    TriangleGeometry& geometry = triangle_geometry_[index];
-    MakeTriangle(objects, o, faces[n], entry, geometry);
-    if (!object_small_[o]) {
-      const long cells = CellCount(geometry.cell_lo, geometry.cell_hi);
-      if (cells <= kMaxTriangleCells) num_pairs += cells;
+    if (object_small_[o]) {
+      MakeSmallTriangle(x, mesh.surface(), faces[n], object_small_begin_[o] + n);
       continue;
     }
-    const int s = object_small_begin_[o] + n;  // its boxes and geometry by coordinate
-    for (int k = 0; k < 3; ++k) {
-      small_.lo[k][s] = entry.lo[k];
-      small_.hi[k][s] = entry.hi[k];
-      small_.corner[k][s] = geometry.corner[0][k];
-      small_.edge0[k][s] = geometry.edge[0][k];
-      small_.edge1[k][s] = geometry.edge[1][k];
-    }
-    small_.edge_lengths[s] = geometry.edge_lengths;
+    const int index = object_entry_begin_[o] + n;
+    TriangleGeometry& geometry = triangle_geometry_[index];
+    MakeTriangle(objects, o, faces[n], triangles_[index], geometry);
+    const long cells = CellCount(geometry.cell_lo, geometry.cell_hi);
+    if (cells <= kMaxTriangleCells) num_pairs += cells;
   }
   // (closest features need neither the hash nor the normals: their queries
   // go through the object's box tree)
@@ -1103,6 +1094,24 @@ void PenetrationSolver::MakeTriangle(std::span<const CollisionObject> objects, i
   geometry.edge_lengths = geometry.edge[0].norm() * geometry.edge[1].norm();
   geometry.cell_lo = Cell(entry.lo);
   geometry.cell_hi = Cell(entry.hi);
+}
+
+void PenetrationSolver::MakeSmallTriangle(const Positions& x, const Triangles& surface, int f,
+                                          int s) {
+  // (the arithmetic of MakeTriangle)
+  Eigen::Vector3d corner[3], lo, hi;
+  for (int k = 0; k < 3; ++k) corner[k] = x.row(surface(f, k)).transpose();
+  InflatedBounds(corner, lo, hi);
+  const Eigen::Vector3d edge0 = corner[1] - corner[0];
+  const Eigen::Vector3d edge1 = corner[2] - corner[0];
+  for (int k = 0; k < 3; ++k) {
+    small_.lo[k][s] = lo[k];
+    small_.hi[k][s] = hi[k];
+    small_.corner[k][s] = corner[0][k];
+    small_.edge0[k][s] = edge0[k];
+    small_.edge1[k][s] = edge1[k];
+  }
+  small_.edge_lengths[s] = edge0.norm() * edge1.norm();
 }
 
 void PenetrationSolver::InsertTriangle(int index) {
@@ -1321,8 +1330,15 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
           best_v * normals_[b].row(surface_b(f, 2)).transpose();
       double length = normal.norm();
       if (length < 1e-12) {  // opposite vertex normals cancel: use the face normal
-        const TriangleGeometry& triangle = triangle_geometry_[best_entry];
-        normal = triangle.edge[0].cross(triangle.edge[1]);
+        if (small) {
+          const int s = object_small_begin_[b] + f;
+          normal = Eigen::Vector3d(small_.edge0[0][s], small_.edge0[1][s], small_.edge0[2][s])
+                       .cross(Eigen::Vector3d(small_.edge1[0][s], small_.edge1[1][s],
+                                              small_.edge1[2][s]));
+        } else {
+          const TriangleGeometry& triangle = triangle_geometry_[best_entry];
+          normal = triangle.edge[0].cross(triangle.edge[1]);
+        }
         length = normal.norm();
         if (length == 0.0) continue;
       }
@@ -1477,20 +1493,19 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
   int best_face = -1;
   // (of triangles equally near, the lowest face: the result does not
   // depend on the order the search meets them in, the tree's)
-  auto test = [&](int index) {
+  // face f with box [lo, hi]; corners() gives its corners
+  auto test_face = [&](int f, const Eigen::Vector3d& lo, const Eigen::Vector3d& hi,
+                       auto&& corners) {
     // (a triangle whose box is farther than the best cannot be nearer: on
     // a coarse box pressed into a fine body, most queries test every one
     // of its large faces)
-    const TriangleEntry& entry = triangles_[index];
-    if (BoxDistance2(entry.lo, entry.hi, p) > best) return;
-    const int f = entry.face;
+    if (BoxDistance2(lo, hi, p) > best) return;
     if (exclude >= 0 &&
         (surface(f, 0) == exclude || surface(f, 1) == exclude || surface(f, 2) == exclude)) {
       return;
     }
-    const TriangleGeometry& triangle = triangle_geometry_[index];
-    Eigen::Vector3d c =
-        ClosestPointOnTriangle(p, triangle.corner[0], triangle.corner[1], triangle.corner[2]);
+    const std::array<Eigen::Vector3d, 3> corner = corners();
+    Eigen::Vector3d c = ClosestPointOnTriangle(p, corner[0], corner[1], corner[2]);
     double d = (c - p).squaredNorm();
     if (d < best || (d == best && f < best_face)) {
       best = d;
@@ -1498,8 +1513,26 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
       closest = c;
     }
   };
-  if (object_small_[b]) {
-    for (int entry = object_entry_begin_[b]; entry < object_entry_end_[b]; ++entry) test(entry);
+  auto test = [&](int index) {  // a triangle entry
+    const TriangleEntry& entry = triangles_[index];
+    test_face(entry.face, entry.lo, entry.hi, [&] {
+      const TriangleGeometry& triangle = triangle_geometry_[index];
+      return std::array<Eigen::Vector3d, 3>{triangle.corner[0], triangle.corner[1],
+                                            triangle.corner[2]};
+    });
+  };
+  if (object_small_[b]) {  // (its boxes in small_, no entries)
+    const Positions& x = *objects[b].positions;
+    const int first = object_small_begin_[b];
+    for (int f = 0; f < object_entry_end_[b] - object_entry_begin_[b]; ++f) {
+      const int s = first + f;
+      test_face(f, Eigen::Vector3d(small_.lo[0][s], small_.lo[1][s], small_.lo[2][s]),
+                Eigen::Vector3d(small_.hi[0][s], small_.hi[1][s], small_.hi[2][s]), [&] {
+                  return std::array<Eigen::Vector3d, 3>{x.row(surface(f, 0)).transpose(),
+                                                        x.row(surface(f, 1)).transpose(),
+                                                        x.row(surface(f, 2)).transpose()};
+                });
+    }
     return std::isfinite(best);
   }
   // the object's box tree over all its triangles if ComputeClosest built

@@ -222,8 +222,8 @@ class PenetrationSolver {
   void BuildVertexHash();
   int BeginSearch(std::span<const CollisionObject> objects, int num_threads);
   void SearchChunk(std::span<const CollisionObject> objects, int chunk);
-  // Entry e of hashed_, a vertex of object a: inside tet of object b?
-  // Adds the hit to `found`.
+  // Whether entry e of hashed_, a vertex of object a, lies inside `tet` of
+  // object b; if so, adds the hit to `found`.
   void TestVertexInTet(const TetMesh& mesh_b, int b, SearchedTet& tet, int e, int a,
                        std::vector<Hit>& found) const;
   // the large tetrahedra the chunks met, against the vertices in their
@@ -254,6 +254,10 @@ class PenetrationSolver {
   // current position.
   void MakeTriangle(std::span<const CollisionObject> objects, int object, int f,
                     TriangleEntry& entry, TriangleGeometry& geometry) const;
+  // Surface triangle f of a small object at its current position (x), as
+  // MakeTriangle computes it, into small_ at s (a small object's triangles
+  // have no entries: stage 2 and closest features read small_).
+  void MakeSmallTriangle(const Positions& x, const Triangles& surface, int f, int s);
   // Entry `index` into its object's triangle hash, or the object's list of
   // triangles too large to hash.
   void InsertTriangle(int index);
@@ -323,10 +327,13 @@ class PenetrationSolver {
 
   // the entries, by object: each object's range is the size of its
   // surface, its entries in play at the start; those added for closest
-  // features (AddRemainingTriangles) come after every object's range
+  // features (AddRemainingTriangles) come after every object's range. A
+  // small object's range is only numbered: entry begin + f is its face f,
+  // kept in small_ alone (its entry and geometry, 208 bytes a triangle,
+  // were written every solve and read almost never)
   std::vector<TriangleEntry> triangles_;
   std::vector<TriangleGeometry> triangle_geometry_;  // per entry
-  // small objects' entries by coordinate, in entry order (stage 2 tests
+  // small objects' triangles by coordinate, face by face (stage 2 tests
   // four at a time), each array padded by kSimdPadding NaN; an object's
   // range is the size of its surface (lanes past its entries are masked)
   struct SmallTriangles {
