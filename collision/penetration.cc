@@ -36,9 +36,11 @@ constexpr long kMaxTriangleCells = 64;
 // Tetrahedra whose bounding box covers more cells than this are searched
 // apart (SearchLargeTets), not cell by cell.
 constexpr long kMaxTetCells = 512;
-// From this many such tetrahedra in a solve, their vertices go into a
-// coarser grid first (its cells kCoarseCellFactor times the size): the
-// grid costs about as much as this many tets testing every hashed vertex.
+// From this many such tetrahedra in a solve, the hashed vertices go into a
+// coarser grid first (its cells kCoarseCellFactor times the size), which
+// costs about as much as this many tets testing every hashed vertex
+// (measured on 100 fine cubes on a slab, BM_MediumSlab: 0.73 ms to grid
+// 68k entries, about 20 us for a tet to test them all).
 constexpr int kMinCoarseLargeTets = 32;
 constexpr double kCoarseCellFactor = 8.0;
 // Stage 2 tests every entry of a triangle hash, four boxes at a time, instead
