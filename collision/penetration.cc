@@ -634,8 +634,20 @@ void PenetrationSolver::SearchChunk(std::span<const CollisionObject> objects, in
   Eigen::Vector3d union_hi = Eigen::Vector3d::Constant(-inf);
   const std::vector<int>& order = object_b.mesh->spatial_tet_order();
   // (a tet whose corners all lie beyond one side of the search box is
-  // outside it: told by the corners' outcodes, no positions read)
+  // outside it: told by the corners' outcodes, no positions read; so is a
+  // chunk whose vertices all do, told without reading its tets: a 1.3M-tet
+  // box touched by a small ball spent 2.3 ms a solve reading them)
   const std::uint8_t* outcode = vertex_outcode_.data() + vertex_offset_[b];
+  {
+    const int run = gc - chunk_offset_[b];
+    const std::vector<int>& run_vertices = object_b.mesh->spatial_run_vertices();
+    const int* run_offsets = object_b.mesh->spatial_run_vertex_offsets().data();
+    std::uint8_t beyond = 0xFF;
+    for (int i = run_offsets[run]; i < run_offsets[run + 1] && beyond != 0; ++i) {
+      beyond &= outcode[run_vertices[i]];
+    }
+    if (beyond != 0) return;
+  }
   for (int n = first; n < last; ++n) {
     const int t = order[n];
     SearchedTet& tet = chunk[chunk_size];

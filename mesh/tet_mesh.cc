@@ -483,6 +483,22 @@ TetMesh TetMesh::Build(RawMesh raw, const TetMeshOptions& options) {
   mesh.bbox_max_ = mesh.positions_.colwise().maxCoeff().transpose();
   mesh.spatial_tet_order_ = SpatialOrder(mesh.positions_, mesh.tets_, mesh.bbox_min_,
                                          mesh.bbox_max_, mesh.average_edge_length_);
+  const int num_runs = std::max(1, num_tets / kSpatialRun);
+  mesh.spatial_run_vertex_offsets_.assign(1, 0);
+  mesh.spatial_run_vertices_.clear();
+  std::vector<int> run_vertices;
+  for (int r = 0; r < num_runs; ++r) {
+    const int end = r + 1 == num_runs ? num_tets : kSpatialRun * (r + 1);
+    run_vertices.clear();
+    for (int n = kSpatialRun * r; n < end; ++n) {
+      for (int k = 0; k < 4; ++k) run_vertices.push_back(mesh.tets_(mesh.spatial_tet_order_[n], k));
+    }
+    std::sort(run_vertices.begin(), run_vertices.end());
+    run_vertices.erase(std::unique(run_vertices.begin(), run_vertices.end()), run_vertices.end());
+    mesh.spatial_run_vertices_.insert(mesh.spatial_run_vertices_.end(), run_vertices.begin(),
+                                      run_vertices.end());
+    mesh.spatial_run_vertex_offsets_.push_back(static_cast<int>(mesh.spatial_run_vertices_.size()));
+  }
   return mesh;
 }
 

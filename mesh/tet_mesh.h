@@ -106,6 +106,16 @@ class TetMesh {
   // time.
   static constexpr int kSpatialRun = 16;
   const std::vector<int>& spatial_tet_order() const { return spatial_tet_order_; }  // #T
+  // The runs of spatial_tet_order: max(1, #T / kSpatialRun) of them, run r
+  // at positions kSpatialRun r to kSpatialRun (r + 1) - 1, the last one to
+  // the end; and the vertices of each run's tetrahedra, each once,
+  // spatial_run_vertices()[spatial_run_vertex_offsets()[r] ..
+  // spatial_run_vertex_offsets()[r + 1]). (The collision solver passes over
+  // a run whose vertices all lie beyond one side of a box without reading
+  // its tetrahedra: a body far larger than what touches it.)
+  int num_spatial_runs() const { return static_cast<int>(spatial_run_vertex_offsets_.size()) - 1; }
+  const std::vector<int>& spatial_run_vertex_offsets() const { return spatial_run_vertex_offsets_; }
+  const std::vector<int>& spatial_run_vertices() const { return spatial_run_vertices_; }
 
   // Unit outward normals of surface vertices (area-weighted average of the
   // incident surface triangles' normals); zero rows for interior vertices.
@@ -141,6 +151,8 @@ class TetMesh {
   std::vector<int> vertex_triangle_offsets_;
   std::vector<int> vertex_triangles_;
   std::vector<int> spatial_tet_order_;
+  std::vector<int> spatial_run_vertex_offsets_;
+  std::vector<int> spatial_run_vertices_;
   Positions vertex_normals_;
   Eigen::VectorXd rest_volumes_;
   double total_volume_ = 0.0;

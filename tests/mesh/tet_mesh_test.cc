@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <random>
+#include <set>
 
 #include "mesh/error.h"
 #include "mesh/generators.h"
@@ -189,6 +190,30 @@ TEST(TetMesh, SpatialTetOrderIsAPermutationWithCompactRuns) {
   // the generator's order is kept when it is compact enough
   EXPECT_LE(MeanRunBoxVolume(generated, generated.spatial_tet_order()),
             MeanRunBoxVolume(generated, file_order) * (1.0 + 1e-12));
+}
+
+// Each run of the spatial order lists the vertices of its tets, each once:
+// max(1, #T / kSpatialRun) runs, the last to the end (fewer tets than a
+// run, a remainder, a whole number of runs).
+TEST(TetMesh, SpatialRunsListTheirTetsVertices) {
+  for (const char* spec : {"box:size=0.1:res=1", "sphere:size=0.05:res=0", "box:size=0.1:res=3",
+                           "box:size=0.1:res=4", "torus:size=0.06,0.025:res=2"}) {
+    SCOPED_TRACE(spec);
+    const TetMesh mesh = TetMesh::Build(MakeShape(spec));
+    const int num_runs = std::max(1, mesh.num_tets() / TetMesh::kSpatialRun);
+    ASSERT_EQ(mesh.num_spatial_runs(), num_runs);
+    const std::vector<int>& offsets = mesh.spatial_run_vertex_offsets();
+    for (int r = 0; r < num_runs; ++r) {
+      std::set<int> expected;
+      const int end = r + 1 == num_runs ? mesh.num_tets() : TetMesh::kSpatialRun * (r + 1);
+      for (int n = TetMesh::kSpatialRun * r; n < end; ++n) {
+        for (int k = 0; k < 4; ++k) expected.insert(mesh.tets()(mesh.spatial_tet_order()[n], k));
+      }
+      const std::vector<int> listed(mesh.spatial_run_vertices().begin() + offsets[r],
+                                    mesh.spatial_run_vertices().begin() + offsets[r + 1]);
+      EXPECT_EQ(listed, std::vector<int>(expected.begin(), expected.end())) << "run " << r;
+    }
+  }
 }
 
 TEST(TetMesh, SurfaceTetOwnsItsTriangle) {
