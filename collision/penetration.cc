@@ -685,14 +685,9 @@ void PenetrationSolver::SearchChunk(std::span<const CollisionObject> objects, in
     // visit(e) for every entry e in `box` and the buckets of its cells
     auto for_each_in_cells = [&](const Eigen::Vector3i& from, const Eigen::Vector3i& to,
                                  const Box4& box, auto&& visit) {
-      for (int k = from.z(); k <= to.z(); ++k) {
-        for (int j = from.y(); j <= to.y(); ++j) {
-          for (int i = from.x(); i <= to.x(); ++i) {
-            const SpatialHash::Range range = hash_.Find({i, j, k}, key);
-            box.ForEachInside(hashed_, range.begin, range.end, visit);
-          }
-        }
-      }
+      hash_.ForEachBucket(from, to, key, [&](SpatialHash::Range range) {
+        box.ForEachInside(hashed_, range.begin, range.end, visit);
+      });
     };
     if (CellCount(cell_lo, cell_hi) > kMaxChunkCells) {
       for (int c = 0; c < chunk_size; ++c) {  // tet by tet
@@ -703,7 +698,7 @@ void PenetrationSolver::SearchChunk(std::span<const CollisionObject> objects, in
         const Eigen::Vector3i from = Cell(tet_lo);
         const Eigen::Vector3i to = Cell(tet_hi);
         if (CellCount(from, to) > kMaxTetCells) {
-          scratch.large_tets.push_back({b, tet.t, partner});
+          scratch.large_tets.push_back({b, tet.t, partner, tet_lo, tet_hi});
           continue;
         }
         for_each_in_cells(from, to, Box4(tet_lo, tet_hi), [&](int e) {
@@ -806,18 +801,11 @@ void PenetrationSolver::SearchLargeTets(std::span<const CollisionObject> objects
         const int b = large.object;
         const CollisionObject& object_b = objects[b];
         const Positions& x = *object_b.positions;
-        SearchedTet tet;
+        SearchedTet tet;  // (its corners; its box: large.lo, large.hi)
         tet.t = large.tet;
         tet.have_coordinates = false;
         const auto vertices = object_b.mesh->tets().row(large.tet);
         for (int k = 0; k < 4; ++k) tet.corner[k] = x.row(vertices[k]).transpose();
-        InflatedBounds(tet.corner, tet.lo, tet.hi);
-        // (as in SearchChunk: the tet's box within the region of the
-        // partner's vertices, or of all partners')
-        const Eigen::Vector3d tet_lo =
-            tet.lo.cwiseMax(large.partner >= 0 ? partners_[large.partner].lo : search_lo_[b]);
-        const Eigen::Vector3d tet_hi =
-            tet.hi.cwiseMin(large.partner >= 0 ? partners_[large.partner].hi : search_hi_[b]);
         const int a_only = large.partner >= 0 ? partners_[large.partner].object : -1;
         std::vector<Hit>& found = thread_scratch_[omp_get_thread_num()].hits;
         auto visit = [&](int e) {
@@ -826,20 +814,15 @@ void PenetrationSolver::SearchLargeTets(std::span<const CollisionObject> objects
             TestVertexInTet(*object_b.mesh, b, tet, e, a, found);
           }
         };
-        const Box4 box(tet_lo, tet_hi);
+        const Box4 box(large.lo, large.hi);
         if (coarse) {
-          const Eigen::Vector3i from = coarse_hash_.CellOf(tet_lo);
-          const Eigen::Vector3i to = coarse_hash_.CellOf(tet_hi);
+          const Eigen::Vector3i from = coarse_hash_.CellOf(large.lo);
+          const Eigen::Vector3i to = coarse_hash_.CellOf(large.hi);
           if (CellCount(from, to) <= num_entries / kEntriesPerCellLookup) {
-            for (int k = from.z(); k <= to.z(); ++k) {
-              for (int j = from.y(); j <= to.y(); ++j) {
-                for (int i = from.x(); i <= to.x(); ++i) {
-                  const SpatialHash::Range range = coarse_hash_.Find({i, j, k});
-                  box.ForEachInside(coarse_, range.begin, range.end,
-                                    [&](int c) { visit(coarse_.vertex[c]); });
-                }
-              }
-            }
+            coarse_hash_.ForEachBucket(from, to, 0, [&](SpatialHash::Range range) {
+              box.ForEachInside(coarse_, range.begin, range.end,
+                                [&](int c) { visit(coarse_.vertex[c]); });
+            });
             return;
           }
         }

@@ -183,13 +183,14 @@ class PenetrationSolver {
     bool have_coordinates;
   };
   // stage 1: a tetrahedron whose box covers more than kMaxTetCells cells,
-  // searched after the chunks (SearchLargeTets): its object and index, and
+  // searched after the chunks (SearchLargeTets): its object and index,
   // whose vertices it tests (partner: an index into partners_, or -1 for
-  // every partner's)
+  // every partner's), and its box within the region where those can be
   struct LargeTet {
     int object;
     int tet;
     int partner;
+    Eigen::Vector3d lo, hi;
   };
   // What one thread of a parallel stage writes, on cache lines of its own:
   // in a plain array, neighbouring threads' vector headers share a line,

@@ -98,6 +98,18 @@ class SpatialHash {
   std::span<const int> items() const { return {items_.data(), static_cast<size_t>(num_items_)}; }
   int num_items() const { return num_items_; }
 
+  // Calls visit(range) with the bucket of (cell, key) of every cell from lo
+  // to hi (inclusive, z outermost, then y, then x).
+  template <typename Visit>
+  void ForEachBucket(const Eigen::Vector3i& lo, const Eigen::Vector3i& hi, int key,
+                     Visit&& visit) const {
+    for (int k = lo.z(); k <= hi.z(); ++k) {
+      for (int j = lo.y(); j <= hi.y(); ++j) {
+        for (int i = lo.x(); i <= hi.x(); ++i) visit(Find({i, j, k}, key));
+      }
+    }
+  }
+
   // Calls visit(item) for every item in the bucket of (cell, key).
   template <typename Visit>
   void ForEach(const Eigen::Vector3i& cell, Visit&& visit, int key = 0) const {
