@@ -337,11 +337,12 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
     edge_count += object.mesh->edges().rows();
   }
   const int num_vertices = vertex_offset_[num_objects];
-  // stage 1's chunks of tets, object after object
+  // stage 1's chunks of tets, object after object: the runs of each
+  // object's spatial order (TetMesh::num_spatial_runs)
   chunk_offset_.resize(num_objects + 1);
   chunk_offset_[0] = 0;
   for (int o = 0; o < num_objects; ++o) {
-    chunk_offset_[o + 1] = chunk_offset_[o] + std::max(1, objects[o].mesh->num_tets() / kChunkTets);
+    chunk_offset_[o + 1] = chunk_offset_[o] + objects[o].mesh->num_spatial_runs();
   }
   vertex_object_.resize(num_vertices);
   for (int o = 0; o < num_objects; ++o) {
