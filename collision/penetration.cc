@@ -147,6 +147,12 @@ class Box4 {
                 (Load4(&lo[2][i]) <= hi_z_) & (lo_z_ <= Load4(&hi[2][i])) & (kLanes + i < end));
   }
 
+  // Bit j set: box j of four boxes [lo[k][j], hi[k][j]] overlaps this one.
+  unsigned Overlapping(const double (&lo)[3][4], const double (&hi)[3][4]) const {
+    return Bits((Load4(lo[0]) <= hi_x_) & (lo_x_ <= Load4(hi[0])) & (Load4(lo[1]) <= hi_y_) &
+                (lo_y_ <= Load4(hi[1])) & (Load4(lo[2]) <= hi_z_) & (lo_z_ <= Load4(hi[2])));
+  }
+
   // visit(e), in increasing order, for every entry e in [begin, end) of
   // points whose position lies in the box (lo <= p <= hi in every
   // coordinate; NaN is outside), four entries at a time (reading up to
@@ -167,26 +173,25 @@ class Box4 {
   Double4 lo_x_, lo_y_, lo_z_, hi_x_, hi_y_, hi_z_;
 };
 
-// SegmentTriangle (geometry.h) for the four triangles i..i+3 of arrays by
-// coordinate (corner[0], edge[0], edge[1] and edge_lengths of
-// TriangleGeometry), the same arithmetic lane by lane. Bit j set: the
-// segment from q to q + dir crosses triangle i + j, at t[j], (u[j], v[j]).
+// SegmentTriangle (geometry.h) for four triangles by coordinate (lane j of
+// corner[k], edge0[k], edge1[k] and edge_lengths: TriangleGeometry's
+// corner[0], edge[0], edge[1] and edge_lengths of triangle j), the same
+// arithmetic lane by lane. Bit j set: the segment from q to q + dir crosses
+// triangle j, at t[j], (u[j], v[j]).
 unsigned SegmentTriangles4(const Eigen::Vector3d& q, const Eigen::Vector3d& dir, double dir_length,
-                           const std::vector<double> (&corner)[3],
-                           const std::vector<double> (&edge0)[3],
-                           const std::vector<double> (&edge1)[3],
-                           const std::vector<double>& edge_lengths, int i, Double4& t, Double4& u,
-                           Double4& v) {
+                           const double (&corner)[3][4], const double (&edge0)[3][4],
+                           const double (&edge1)[3][4], const double (&edge_lengths)[4], Double4& t,
+                           Double4& u, Double4& v) {
   constexpr double kTolerance = kSegmentTriangleTolerance;
-  const Double4 e1[3] = {Load4(&edge0[0][i]), Load4(&edge0[1][i]), Load4(&edge0[2][i])};
-  const Double4 e2[3] = {Load4(&edge1[0][i]), Load4(&edge1[1][i]), Load4(&edge1[2][i])};
+  const Double4 e1[3] = {Load4(edge0[0]), Load4(edge0[1]), Load4(edge0[2])};
+  const Double4 e2[3] = {Load4(edge1[0]), Load4(edge1[1]), Load4(edge1[2])};
   const Double4 h[3] = {dir.y() * e2[2] - dir.z() * e2[1], dir.z() * e2[0] - dir.x() * e2[2],
                         dir.x() * e2[1] - dir.y() * e2[0]};
   const Double4 det = e1[0] * h[0] + e1[1] * h[1] + e1[2] * h[2];
-  const Double4 scale = Load4(&edge_lengths[i]) * dir_length;
+  const Double4 scale = Load4(edge_lengths) * dir_length;
   const Double4 inv = 1.0 / det;
-  const Double4 s[3] = {q.x() - Load4(&corner[0][i]), q.y() - Load4(&corner[1][i]),
-                        q.z() - Load4(&corner[2][i])};
+  const Double4 s[3] = {q.x() - Load4(corner[0]), q.y() - Load4(corner[1]),
+                        q.z() - Load4(corner[2])};
   u = (s[0] * h[0] + s[1] * h[1] + s[2] * h[2]) * inv;
   const Double4 k[3] = {s[1] * e1[2] - s[2] * e1[1], s[2] * e1[0] - s[0] * e1[2],
                         s[0] * e1[1] - s[1] * e1[0]};
@@ -943,17 +948,11 @@ int PenetrationSolver::PlaceSurfaces(std::span<const CollisionObject> objects, b
     object_entry_end_[o] = num_entries;
     num_entries += num_faces;
     object_small_begin_[o] = num_small;
-    if (object_small_[o]) num_small += num_faces;
+    if (object_small_[o]) num_small += (num_faces + 3) / 4;
   }
   triangles_.resize(num_entries);
   triangle_geometry_.resize(num_entries);
-  for (int k = 0; k < 3; ++k) {
-    for (auto* values :
-         {&small_.lo[k], &small_.hi[k], &small_.corner[k], &small_.edge0[k], &small_.edge1[k]}) {
-      ResizePadded(*values, num_small);
-    }
-  }
-  ResizePadded(small_.edge_lengths, num_small);
+  small_.resize(num_small);
   if (++normal_round_ == 0) {  // wrapped: stamps would be ambiguous
     for (auto& stamps : normal_stamp_) std::fill(stamps.begin(), stamps.end(), 0);
     normal_round_ = 1;
@@ -984,17 +983,25 @@ void PenetrationSolver::HashSurface(std::span<const CollisionObject> objects, in
     if (TriangleInRegion(objects, o, f, region)) faces.push_back(f);
   }
   object_entry_end_[o] = object_entry_begin_[o] + static_cast<int>(faces.size());
-  long num_pairs = 0;  // (cell, triangle) pairs a hashed object's table will hold
-  for (int n = 0; n < static_cast<int>(faces.size()); ++n) {
-    if (object_small_[o]) {
-      MakeSmallTriangle(x, mesh.surface(), faces[n], object_small_begin_[o] + n);
-      continue;
+  long num_pairs = 0;      // (cell, triangle) pairs a hashed object's table will hold
+  if (object_small_[o]) {  // every face, in order (fully hashed)
+    SmallTriangleGroup* groups = &small_[object_small_begin_[o]];
+    for (int f = 0; f < num_faces; ++f)
+      MakeSmallTriangle(x, mesh.surface(), f, groups[f / 4], f % 4);
+    for (int f = num_faces; f % 4 != 0; ++f) {  // the last group's lanes past the faces
+      for (int k = 0; k < 3; ++k) {
+        groups[f / 4].lo[k][f % 4] = std::numeric_limits<double>::quiet_NaN();
+        groups[f / 4].hi[k][f % 4] = std::numeric_limits<double>::quiet_NaN();
+      }
     }
-    const int index = object_entry_begin_[o] + n;
-    TriangleGeometry& geometry = triangle_geometry_[index];
-    MakeTriangle(objects, o, faces[n], triangles_[index], geometry);
-    const long cells = CellCount(geometry.cell_lo, geometry.cell_hi);
-    if (cells <= kMaxTriangleCells) num_pairs += cells;
+  } else {
+    for (int n = 0; n < static_cast<int>(faces.size()); ++n) {
+      const int index = object_entry_begin_[o] + n;
+      TriangleGeometry& geometry = triangle_geometry_[index];
+      MakeTriangle(objects, o, faces[n], triangles_[index], geometry);
+      const long cells = CellCount(geometry.cell_lo, geometry.cell_hi);
+      if (cells <= kMaxTriangleCells) num_pairs += cells;
+    }
   }
   // (closest features need neither the hash nor the normals: their queries
   // go through the object's box tree)
@@ -1095,7 +1102,7 @@ void PenetrationSolver::MakeTriangle(std::span<const CollisionObject> objects, i
 }
 
 void PenetrationSolver::MakeSmallTriangle(const Positions& x, const Triangles& surface, int f,
-                                          int s) {
+                                          SmallTriangleGroup& group, int lane) {
   // (the arithmetic of MakeTriangle)
   Eigen::Vector3d corner[3], lo, hi;
   for (int k = 0; k < 3; ++k) corner[k] = x.row(surface(f, k)).transpose();
@@ -1103,13 +1110,13 @@ void PenetrationSolver::MakeSmallTriangle(const Positions& x, const Triangles& s
   const Eigen::Vector3d edge0 = corner[1] - corner[0];
   const Eigen::Vector3d edge1 = corner[2] - corner[0];
   for (int k = 0; k < 3; ++k) {
-    small_.lo[k][s] = lo[k];
-    small_.hi[k][s] = hi[k];
-    small_.corner[k][s] = corner[0][k];
-    small_.edge0[k][s] = edge0[k];
-    small_.edge1[k][s] = edge1[k];
+    group.lo[k][lane] = lo[k];
+    group.hi[k][lane] = hi[k];
+    group.corner[k][lane] = corner[0][k];
+    group.edge0[k][lane] = edge0[k];
+    group.edge1[k][lane] = edge1[k];
   }
-  small_.edge_lengths[s] = edge0.norm() * edge1.norm();
+  group.edge_lengths[lane] = edge0.norm() * edge1.norm();
 }
 
 void PenetrationSolver::InsertTriangle(int index) {
@@ -1257,20 +1264,20 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
       if (small) {
         // a small object's triangles are all in its list, none in the
         // grid: tested four at a time, box and crossing
-        const int begin = object_entry_begin_[b];
-        const int first = object_small_begin_[b];
-        const int end = first + object_entry_end_[b] - begin;
+        const int num_faces = object_entry_end_[b] - entry_begin;
+        const SmallTriangleGroup* groups = &small_[object_small_begin_[b]];
         const Box4 segment_box(segment_lo, segment_hi);
-        for (int i = first; i < end; i += 4) {
-          const unsigned overlapping = segment_box.Overlapping(small_.lo, small_.hi, i, end);
+        for (int g = 0; g < (num_faces + 3) / 4; ++g) {
+          const SmallTriangleGroup& group = groups[g];
+          const unsigned overlapping = segment_box.Overlapping(group.lo, group.hi);
           if (overlapping == 0) continue;
           Double4 t, u, w;
           const unsigned crossed =
-              overlapping & SegmentTriangles4(q, dir, dir_length, small_.corner, small_.edge0,
-                                              small_.edge1, small_.edge_lengths, i, t, u, w);
+              overlapping & SegmentTriangles4(q, dir, dir_length, group.corner, group.edge0,
+                                              group.edge1, group.edge_lengths, t, u, w);
           for (unsigned bits = crossed; bits != 0; bits &= bits - 1) {
             const int lane = std::countr_zero(bits);
-            consider(begin + i - first + lane, t[lane], u[lane], w[lane]);
+            consider(entry_begin + 4 * g + lane, t[lane], u[lane], w[lane]);
           }
         }
       } else {
@@ -1329,10 +1336,11 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
       double length = normal.norm();
       if (length < 1e-12) {  // opposite vertex normals cancel: use the face normal
         if (small) {
-          const int s = object_small_begin_[b] + f;
-          normal = Eigen::Vector3d(small_.edge0[0][s], small_.edge0[1][s], small_.edge0[2][s])
-                       .cross(Eigen::Vector3d(small_.edge1[0][s], small_.edge1[1][s],
-                                              small_.edge1[2][s]));
+          const SmallTriangleGroup& group = small_[object_small_begin_[b] + f / 4];
+          const int lane = f % 4;
+          normal = Eigen::Vector3d(group.edge0[0][lane], group.edge0[1][lane], group.edge0[2][lane])
+                       .cross(Eigen::Vector3d(group.edge1[0][lane], group.edge1[1][lane],
+                                              group.edge1[2][lane]));
         } else {
           const TriangleGeometry& triangle = triangle_geometry_[best_entry];
           normal = triangle.edge[0].cross(triangle.edge[1]);
@@ -1521,11 +1529,12 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
   };
   if (object_small_[b]) {  // (its boxes in small_, no entries)
     const Positions& x = *objects[b].positions;
-    const int first = object_small_begin_[b];
+    const SmallTriangleGroup* groups = &small_[object_small_begin_[b]];
     for (int f = 0; f < object_entry_end_[b] - object_entry_begin_[b]; ++f) {
-      const int s = first + f;
-      test_face(f, Eigen::Vector3d(small_.lo[0][s], small_.lo[1][s], small_.lo[2][s]),
-                Eigen::Vector3d(small_.hi[0][s], small_.hi[1][s], small_.hi[2][s]), [&] {
+      const SmallTriangleGroup& group = groups[f / 4];
+      const int lane = f % 4;
+      test_face(f, Eigen::Vector3d(group.lo[0][lane], group.lo[1][lane], group.lo[2][lane]),
+                Eigen::Vector3d(group.hi[0][lane], group.hi[1][lane], group.hi[2][lane]), [&] {
                   return std::array<Eigen::Vector3d, 3>{x.row(surface(f, 0)).transpose(),
                                                         x.row(surface(f, 1)).transpose(),
                                                         x.row(surface(f, 2)).transpose()};

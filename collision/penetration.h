@@ -173,6 +173,18 @@ class PenetrationSolver {
     double edge_lengths;               // |edge[0]| |edge[1]|
     Eigen::Vector3i cell_lo, cell_hi;  // the cells the box covers
   };
+  // small objects' triangles, four to a group (stage 2 tests four at a
+  // time): the four faces' boxes and geometry by coordinate, 512 bytes in a
+  // row, so that a small body's faces are read front to back (in a pile of
+  // 1200 spheres, arrays by coordinate spread each body's over 16 streams
+  // that did not stay in the core's cache). An object's faces start a
+  // group; lanes past its last face have NaN boxes, which overlap nothing.
+  struct alignas(64) SmallTriangleGroup {
+    double lo[3][4], hi[3][4];        // the box
+    double corner[3][4];              // TriangleGeometry's corner[0]
+    double edge0[3][4], edge1[3][4];  // and edges
+    double edge_lengths[4];
+  };
   // a tetrahedron of object B searched in stage 1: its corners and box, and
   // its barycentric coordinates once a vertex in its box needs them
   struct SearchedTet {
@@ -256,9 +268,11 @@ class PenetrationSolver {
   void MakeTriangle(std::span<const CollisionObject> objects, int object, int f,
                     TriangleEntry& entry, TriangleGeometry& geometry) const;
   // Surface triangle f of a small object at its current position (x), as
-  // MakeTriangle computes it, into small_ at s (a small object's triangles
-  // have no entries: stage 2 and closest features read small_).
-  void MakeSmallTriangle(const Positions& x, const Triangles& surface, int f, int s);
+  // MakeTriangle computes it, into lane `lane` of a group of small_ (a small
+  // object's triangles have no entries: stage 2 and closest features read
+  // small_).
+  void MakeSmallTriangle(const Positions& x, const Triangles& surface, int f,
+                         SmallTriangleGroup& group, int lane);
   // Entry `index` into its object's triangle hash, or the object's list of
   // triangles too large to hash.
   void InsertTriangle(int index);
@@ -334,17 +348,10 @@ class PenetrationSolver {
   // were written every solve and read almost never)
   std::vector<TriangleEntry> triangles_;
   std::vector<TriangleGeometry> triangle_geometry_;  // per entry
-  // small objects' triangles by coordinate, face by face (stage 2 tests
-  // four at a time), each array padded by kSimdPadding NaN; an object's
-  // range is the size of its surface (lanes past its entries are masked)
-  struct SmallTriangles {
-    std::vector<double> lo[3], hi[3];        // the box
-    std::vector<double> corner[3];           // TriangleGeometry's corner[0]
-    std::vector<double> edge0[3], edge1[3];  // and edges
-    std::vector<double> edge_lengths;
-  };
-  SmallTriangles small_;
-  std::vector<int> object_small_begin_;  // #objects: its first entry in small_
+  // small objects' triangles, by group (SmallTriangleGroup); an object's
+  // faces start a group
+  std::vector<SmallTriangleGroup> small_;
+  std::vector<int> object_small_begin_;  // #objects: its first group in small_
   // per penetrated object that is not small, for stage 2 and closest
   // features: its triangle entries in a hash of its own, which the thread
   // that makes the object's entries builds (a shared table would be filled
