@@ -129,6 +129,31 @@ inline bool BoxesOverlap(const Eigen::Vector3d& lo_a, const Eigen::Vector3d& hi_
          (lo_b.y() <= hi_a.y()) & (lo_a.z() <= hi_b.z()) & (lo_b.z() <= hi_a.z());
 }
 
+// Below this length the interpolated vertex normals of SmoothNormal are
+// taken to cancel (unit normals weighted by barycentric coordinates: a sum
+// this short comes from opposite normals, as across a fold or a crushed
+// tetrahedron, and has no direction left).
+constexpr double kCancelledNormal = 1e-12;
+
+// Stage 2's smooth normal at the point (1-u-v, u, v) of a surface triangle
+// whose vertices have unit normals n0, n1, n2: their barycentric
+// interpolation, normalised; where that cancels, the triangle's face normal,
+// face_normal() (any length, e.g. e1 x e2; called only then). Returns false,
+// leaving `normal` unspecified, if the face normal is zero too.
+template <typename FaceNormal>
+bool SmoothNormal(const Eigen::Vector3d& n0, const Eigen::Vector3d& n1, const Eigen::Vector3d& n2,
+                  double u, double v, FaceNormal&& face_normal, Eigen::Vector3d& normal) {
+  normal = (1.0 - u - v) * n0 + u * n1 + v * n2;
+  double length = normal.norm();
+  if (length < kCancelledNormal) {
+    normal = face_normal();
+    length = normal.norm();
+    if (length == 0.0) return false;
+  }
+  normal /= length;
+  return true;
+}
+
 // The squared distance from p to the box [lo, hi] (0 inside it).
 inline double BoxDistance2(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi,
                            const Eigen::Vector3d& p) {

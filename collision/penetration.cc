@@ -1328,27 +1328,26 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
       if (best_entry < 0) continue;
       const int f = face_of(best_entry);
       const Eigen::Vector3d crossing = q + best_t * dir;
-      // smooth normal: barycentric interpolation of the vertex normals
-      Eigen::Vector3d normal =
-          (1.0 - best_u - best_v) * normals_[b].row(surface_b(f, 0)).transpose() +
-          best_u * normals_[b].row(surface_b(f, 1)).transpose() +
-          best_v * normals_[b].row(surface_b(f, 2)).transpose();
-      double length = normal.norm();
-      if (length < 1e-12) {  // opposite vertex normals cancel: use the face normal
+      // smooth normal: barycentric interpolation of the vertex normals, or
+      // the face normal where they cancel
+      Eigen::Vector3d normal;
+      auto face_normal = [&]() -> Eigen::Vector3d {
         if (small) {
           const SmallTriangleGroup& group = small_[object_small_begin_[b] + f / 4];
           const int lane = f % 4;
-          normal = Eigen::Vector3d(group.edge0[0][lane], group.edge0[1][lane], group.edge0[2][lane])
-                       .cross(Eigen::Vector3d(group.edge1[0][lane], group.edge1[1][lane],
-                                              group.edge1[2][lane]));
-        } else {
-          const TriangleGeometry& triangle = triangle_geometry_[best_entry];
-          normal = triangle.edge[0].cross(triangle.edge[1]);
+          return Eigen::Vector3d(group.edge0[0][lane], group.edge0[1][lane], group.edge0[2][lane])
+              .cross(Eigen::Vector3d(group.edge1[0][lane], group.edge1[1][lane],
+                                     group.edge1[2][lane]));
         }
-        length = normal.norm();
-        if (length == 0.0) continue;
+        const TriangleGeometry& triangle = triangle_geometry_[best_entry];
+        return triangle.edge[0].cross(triangle.edge[1]);
+      };
+      if (!SmoothNormal(normals_[b].row(surface_b(f, 0)).transpose(),
+                        normals_[b].row(surface_b(f, 1)).transpose(),
+                        normals_[b].row(surface_b(f, 2)).transpose(), best_u, best_v, face_normal,
+                        normal)) {
+        continue;
       }
-      normal /= length;
       // stage 3: w_i = 1 / |x_i - p|^2 (method.md)
       const Eigen::Vector3d to_crossing = crossing - p;
       const double distance = to_crossing.norm();

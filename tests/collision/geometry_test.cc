@@ -78,5 +78,55 @@ TEST(SegmentTriangle, CrossingLiesOnTheSegmentAndTheTriangle) {
   EXPECT_GT(crossings, 50);  // the test saw crossings at all
 }
 
+TEST(SmoothNormal, InterpolatesTheVertexNormals) {
+  std::mt19937 rng(13);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  for (int trial = 0; trial < 200; ++trial) {
+    const Eigen::Vector3d n0 = RandomPoint(rng).normalized(), n1 = RandomPoint(rng).normalized(),
+                          n2 = RandomPoint(rng).normalized();
+    const double u = 0.5 * unit(rng), v = 0.5 * unit(rng);
+    const Eigen::Vector3d sum = (1.0 - u - v) * n0 + u * n1 + v * n2;
+    if (sum.norm() < 1e-3) continue;
+    int face_calls = 0;
+    Eigen::Vector3d normal;
+    ASSERT_TRUE(SmoothNormal(
+        n0, n1, n2, u, v, [&] { return ++face_calls, Eigen::Vector3d(0, 0, 1); }, normal));
+    EXPECT_NEAR((normal - sum.normalized()).norm(), 0.0, 1e-15) << "trial " << trial;
+    EXPECT_EQ(face_calls, 0);  // the face normal only where the interpolation cancels
+  }
+  // at a vertex: that vertex's normal
+  const Eigen::Vector3d n0(0, 0, 1), n1(1, 0, 0), n2(0, 1, 0);
+  Eigen::Vector3d normal;
+  ASSERT_TRUE(SmoothNormal(
+      n0, n1, n2, 0.0, 1.0, [] { return Eigen::Vector3d(1, 1, 1); }, normal));
+  EXPECT_EQ(normal, n2);
+}
+
+// Opposite vertex normals (a fold, a crushed tetrahedron) cancel halfway
+// between their vertices: the face normal there, normalised; nearly
+// opposite ones still interpolate.
+TEST(SmoothNormal, CancellingVertexNormalsGiveTheFaceNormal) {
+  const Eigen::Vector3d up(0, 0, 1), side(0, 1, 0);
+  const Eigen::Vector3d e1(2, 0, 0), e2(0, 3, 0);  // face normal e1 x e2 = (0, 0, 6)
+  Eigen::Vector3d normal;
+  ASSERT_TRUE(SmoothNormal(
+      up, -up, side, 0.5, 0.0, [&]() -> Eigen::Vector3d { return e1.cross(e2); }, normal));
+  EXPECT_EQ(normal, Eigen::Vector3d(0, 0, 1));
+  // all three cancel at (1/3, 1/3, 1/3)
+  const Eigen::Vector3d a(1, 0, 0), b(-0.5, std::sqrt(0.75), 0), c(-0.5, -std::sqrt(0.75), 0);
+  const double third = 1.0 / 3.0;
+  ASSERT_TRUE(SmoothNormal(
+      a, b, c, third, third, [&]() -> Eigen::Vector3d { return -e1.cross(e2); }, normal));
+  EXPECT_NEAR((normal - Eigen::Vector3d(0, 0, -1)).norm(), 0.0, 1e-15);
+  // nearly opposite: a short sum with a direction of its own
+  const Eigen::Vector3d tilted = Eigen::Vector3d(1e-6, 0, -1).normalized();
+  ASSERT_TRUE(SmoothNormal(
+      up, tilted, side, 0.5, 0.0, [&]() -> Eigen::Vector3d { return e1.cross(e2); }, normal));
+  EXPECT_NEAR((normal - Eigen::Vector3d(1, 0, 0)).norm(), 0.0, 1e-6);
+  // a degenerate face under cancelling normals: no normal
+  EXPECT_FALSE(SmoothNormal(
+      up, -up, side, 0.5, 0.0, [] { return Eigen::Vector3d::Zero(); }, normal));
+}
+
 }  // namespace
 }  // namespace tetcosim
