@@ -93,9 +93,29 @@ TEST(CollidingPoints, HashMatchesBruteForceOnRandomScenes) {
   }
 }
 
+// Two tetrahedra on the two sides of a triangle (radius r, apexes h above
+// and below): 6 surface triangles, not a multiple of four (the solver keeps
+// a small body's triangles in groups of four; the last group's other lanes
+// must meet nothing).
+RawMesh Bipyramid(double r, double h) {
+  RawMesh raw;
+  raw.positions.resize(5, 3);
+  for (int i = 0; i < 3; ++i) {
+    const double a = 2.0 * std::numbers::pi * i / 3.0;
+    raw.positions.row(i) << r * std::cos(a), r * std::sin(a), 0.0;
+  }
+  raw.positions.row(3) << 0.0, 0.0, h;
+  raw.positions.row(4) << 0.0, 0.0, -h;
+  raw.tets.resize(2, 4);
+  raw.tets << 0, 1, 2, 3, 0, 2, 1, 4;
+  raw.source = "bipyramid";
+  return raw;
+}
+
 // A pile of small bodies in and around a large one: a large box
-// (rigid in odd trials), 14 small bodies (the paper's 20-tet spheres among
-// them), and a bar folded into itself with self-collision.
+// (rigid in odd trials), 14 small bodies (the paper's 20-tet spheres and a
+// bipyramid of 6 triangles among them), and a bar folded into itself with
+// self-collision.
 TestScene CrowdedScene(int trial) {
   std::mt19937 rng(11 + trial);
   std::uniform_real_distribution<double> offset(-0.07, 0.07);
@@ -107,7 +127,7 @@ TestScene CrowdedScene(int trial) {
             /*rigid=*/trial % 2 == 1);
   for (int k = 0; k < 14; ++k) {
     Eigen::Vector3d axis(offset(rng), offset(rng), offset(rng) + 0.01);
-    scene.Add(TetMesh::Build(MakeShape(shapes[k % 3])),
+    scene.Add(TetMesh::Build(k % 4 == 3 ? Bipyramid(0.03, 0.025) : MakeShape(shapes[k % 3])),
               Pose({offset(rng), offset(rng), offset(rng)}, angle(rng), axis),
               /*rigid=*/k % 5 == 4);
   }
@@ -642,6 +662,22 @@ TEST(ClosestFeature, AcceleratedSearchMatchesBruteForce) {
 
 // the solver's results with 1, 2 and 3 threads: the same, bit for bit (3:
 // more threads than cores here, and than the groups of some loops)
+// The same results bit for bit (what: the run compared, for messages).
+void ExpectSameResults(const std::vector<PenetrationResult>& expected,
+                       const std::vector<PenetrationResult>& actual, const std::string& what) {
+  ASSERT_EQ(expected.size(), actual.size()) << what;
+  for (size_t i = 0; i < actual.size(); ++i) {
+    const auto& x = expected[i];
+    const auto& y = actual[i];
+    EXPECT_EQ(std::tie(x.object, x.vertex, x.penetrated, x.tet),
+              std::tie(y.object, y.vertex, y.penetrated, y.tet))
+        << what;
+    EXPECT_EQ(std::memcmp(&x.depth, &y.depth, sizeof(double)), 0) << what;
+    EXPECT_EQ(std::memcmp(x.direction.data(), y.direction.data(), 3 * sizeof(double)), 0) << what;
+    EXPECT_EQ(x.source, y.source) << what;
+  }
+}
+
 void ExpectSameResultsWhateverTheThreads(const TestScene& scene, size_t min_results) {
   for (DepthMethod method : {DepthMethod::kConsistent, DepthMethod::kClosest}) {
     std::vector<PenetrationResult> runs[3];
@@ -654,19 +690,7 @@ void ExpectSameResultsWhateverTheThreads(const TestScene& scene, size_t min_resu
     }
     ASSERT_GT(runs[0].size(), min_results);
     for (int threads : {2, 3}) {
-      const std::vector<PenetrationResult>& run = runs[threads - 1];
-      ASSERT_EQ(runs[0].size(), run.size()) << threads << " threads";
-      for (size_t i = 0; i < run.size(); ++i) {
-        const auto& x = runs[0][i];
-        const auto& y = run[i];
-        EXPECT_EQ(std::tie(x.object, x.vertex, x.penetrated, x.tet),
-                  std::tie(y.object, y.vertex, y.penetrated, y.tet))
-            << threads << " threads";
-        EXPECT_EQ(std::memcmp(&x.depth, &y.depth, sizeof(double)), 0) << threads << " threads";
-        EXPECT_EQ(std::memcmp(x.direction.data(), y.direction.data(), 3 * sizeof(double)), 0)
-            << threads << " threads";
-        EXPECT_EQ(x.source, y.source) << threads << " threads";
-      }
+      ExpectSameResults(runs[0], runs[threads - 1], std::to_string(threads) + " threads");
     }
   }
 }
@@ -724,6 +748,51 @@ TEST(Determinism, SameResultsWhateverTheThreads) {
   EXPECT_GT(self_hits, 100);
   EXPECT_GT(rigid_hits, 20);
   ExpectSameResultsWhateverTheThreads(folded, 200);
+}
+
+// A solver keeps its buffers from solve to solve (stamps, tables, the
+// small bodies' triangle groups, whose last lanes must not keep another
+// body's triangles): one solver taken through different scenes, one after
+// another, gives what a new solver gives on each, bit for bit.
+TEST(Determinism, ReusedSolverMatchesANewOne) {
+  std::vector<TestScene> scenes;
+  for (int trial : {0, 1, 2, 3, 0}) scenes.push_back(CrowdedScene(trial));
+  TestScene fewer;  // the first crowded scene without its first three bodies
+  const TestScene& first = scenes[0];
+  for (size_t o = 0; o < first.objects.size(); ++o) {
+    if (o >= 1 && o <= 3) continue;
+    fewer.Add(TetMesh(*first.objects[o].mesh), Pose({0, 0, 0}), first.objects[o].rigid,
+              first.objects[o].self_collision);
+    *fewer.positions.back() = *first.objects[o].positions;
+  }
+  scenes.push_back(std::move(fewer));
+  // a box pushed into a small box, then into a bipyramid in its place: the
+  // bipyramid's 6 triangles take the slots of the small box's first 8, of
+  // which 6 and 7 are its side at x = 0.035, beyond the bipyramid and
+  // crossed by the pushed box's edges
+  for (bool small_box : {true, false}) {
+    TestScene scene;
+    scene.Add(TetMesh::Build(small_box ? MakeShape("box:size=0.035:res=1") : Bipyramid(0.03, 0.03)),
+              Pose({0, 0, 0}));
+    scene.Add(TetMesh::Build(MakeShape("box:size=0.02:res=2")), Pose({0.02, 0.004, 0.003}));
+    scenes.push_back(std::move(scene));
+  }
+  for (DepthMethod method : {DepthMethod::kConsistent, DepthMethod::kClosest}) {
+    for (int threads : {1, 2}) {
+      PenetrationOptions options;
+      options.method = method;
+      options.num_threads = threads;
+      PenetrationSolver reused(options);
+      for (size_t i = 0; i < scenes.size(); ++i) {
+        const std::vector<PenetrationResult> results = reused.Solve(scenes[i].objects);
+        PenetrationSolver fresh(options);
+        ASSERT_FALSE(results.empty());
+        ExpectSameResults(fresh.Solve(scenes[i].objects), results,
+                          std::string(DepthMethodName(method)) + ", " + std::to_string(threads) +
+                              " threads, scene " + std::to_string(i));
+      }
+    }
+  }
 }
 
 }  // namespace
