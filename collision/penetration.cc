@@ -916,7 +916,7 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
   const int num_triangles = PlaceSurfaces(objects, full);
   const int threads = ThreadsFor(options_.num_threads, num_triangles, 128);
   if (static_cast<int>(thread_scratch_.size()) < threads) thread_scratch_.resize(threads);
-  // consecutive objects to a thread: their entries (and small_'s arrays)
+  // consecutive objects to a thread: their entries (and small_'s groups)
   // are neighbours, and two threads writing either side of a cache line
   // would pass it back and forth; a few grabs per thread still balance
   const int num_surfaces = static_cast<int>(surface_list_.size());

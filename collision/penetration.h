@@ -357,7 +357,7 @@ class PenetrationSolver {
   // that makes the object's entries builds (a shared table would be filled
   // by one thread: on two cubes that was a tenth of the solve, serial); the
   // entries' boxes in the hash's bucket order (hash entry e: triangle entry
-  // hash.items()[e]), by coordinate and padded like small_, so that a query
+  // hash.items()[e]), by coordinate and padded by kSimdPadding NaN, so that a query
   // tests a bucket's boxes four at a time; the entries too large to hash.
   // On cache lines of their own, like ThreadScratch: threads fill
   // neighbouring objects' tables at once.
