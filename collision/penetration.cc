@@ -986,8 +986,9 @@ void PenetrationSolver::HashSurface(std::span<const CollisionObject> objects, in
   long num_pairs = 0;      // (cell, triangle) pairs a hashed object's table will hold
   if (object_small_[o]) {  // every face, in order (fully hashed)
     SmallTriangleGroup* groups = &small_[object_small_begin_[o]];
-    for (int f = 0; f < num_faces; ++f)
+    for (int f = 0; f < num_faces; ++f) {
       MakeSmallTriangle(x, mesh.surface(), f, groups[f / 4], f % 4);
+    }
     for (int f = num_faces; f % 4 != 0; ++f) {  // the last group's lanes past the faces
       for (int k = 0; k < 3; ++k) {
         groups[f / 4].lo[k][f % 4] = std::numeric_limits<double>::quiet_NaN();
