@@ -232,7 +232,7 @@ class PenetrationSolver {
   // the merge of the threads' hits
   void BeginVertexHash();
   void ClassifyVertices(int begin_vertex, int end_vertex);  // (global numbers)
-  void BuildVertexHash();
+  void BuildVertexHash(int num_threads);
   int BeginSearch(std::span<const CollisionObject> objects, int num_threads);
   void SearchChunk(std::span<const CollisionObject> objects, int chunk);
   // Whether entry e of hashed_, a vertex of object a, lies inside `tet` of
@@ -326,6 +326,7 @@ class PenetrationSolver {
 
   SpatialHash hash_;  // stage 1: vertices
   std::vector<Eigen::Vector3i> vertex_cell_;
+  std::vector<int> block_insertion_;  // BuildVertexHash: per block of vertices, its first insertion
   std::vector<std::uint8_t> vertex_outcode_;  // #global vertices: the sides of its object's
                                               // search box it lies beyond (0: hashed)
   HashedVertices hashed_;

@@ -1,8 +1,11 @@
 #include "collision/spatial_hash.h"
 
 #include <algorithm>
+#include <bit>
 #include <cassert>
 #include <cmath>
+
+#include "mesh/parallel_for.h"
 
 namespace tetcosim {
 
@@ -68,6 +71,110 @@ void SpatialHash::Build() {
     Slot& slot = slots_[inserted_bucket_[i]];
     items_[slot.begin + slot.count++] = inserted_item_[i];
   }
+}
+
+void SpatialHash::ResizeInsertions(int n) {
+  inserted_bucket_.resize(n);
+  inserted_item_.resize(n);
+}
+
+void SpatialHash::BuildSorted(int num_threads) {
+  const int n = static_cast<int>(inserted_item_.size());
+  // each thread takes a contiguous part of the insertions (part t: [n t /
+  // T, n (t + 1) / T)), or of the sorted entries
+  const int threads = std::clamp(n / 4096, 1, std::max(1, num_threads));
+  auto part_begin = [&](int t) { return static_cast<int>(static_cast<long>(n) * t / threads); };
+  // 1. the insertions' numbers sorted by bucket, stably (a radix sort in
+  // digits of up to 11 bits, as few passes as the largest bucket needs)
+  const int bits = std::max(1, static_cast<int>(std::bit_width(table_size_ - 1)));
+  const int passes = (bits + 10) / 11;
+  const int digit_bits = (bits + passes - 1) / passes;
+  const int num_digits = 1 << digit_bits;
+  if (static_cast<int>(sorted_bucket_.size()) < n) {
+    sorted_bucket_.resize(n);
+    sorted_insertion_[0].resize(n);
+    sorted_insertion_[1].resize(n);
+    first_run_.resize(n);
+    first_count_.resize(n);
+  }
+  if (static_cast<int>(digit_count_.size()) < threads * num_digits) {
+    digit_count_.resize(threads * num_digits);
+  }
+  if (static_cast<int>(part_count_.size()) < threads + 1) part_count_.resize(threads + 1);
+  int* bucket = inserted_bucket_.data();
+  int* insertion = sorted_insertion_[0].data();
+  int* other_bucket = sorted_bucket_.data();
+  int* other_insertion = sorted_insertion_[1].data();
+  ParallelFor(threads, 0, threads, [&](int t) {
+    for (int i = part_begin(t); i < part_begin(t + 1); ++i) insertion[i] = i;
+  });
+  for (int pass = 0; pass < passes; ++pass) {
+    const int shift = pass * digit_bits;
+    const unsigned mask = num_digits - 1;
+    ParallelFor(threads, 0, threads, [&](int t) {
+      int* count = digit_count_.data() + t * num_digits;
+      std::fill(count, count + num_digits, 0);
+      for (int i = part_begin(t); i < part_begin(t + 1); ++i) {
+        ++count[(static_cast<unsigned>(bucket[i]) >> shift) & mask];
+      }
+    });
+    // where each (digit, thread) starts: digit by digit, thread by thread
+    for (int d = 0, sum = 0; d < num_digits; ++d) {
+      for (int t = 0; t < threads; ++t) {
+        int& count = digit_count_[t * num_digits + d];
+        const int c = count;
+        count = sum;
+        sum += c;
+      }
+    }
+    ParallelFor(threads, 0, threads, [&](int t) {
+      int* next = digit_count_.data() + t * num_digits;
+      for (int i = part_begin(t); i < part_begin(t + 1); ++i) {
+        const int at = next[(static_cast<unsigned>(bucket[i]) >> shift) & mask]++;
+        other_bucket[at] = bucket[i];
+        other_insertion[at] = insertion[i];
+      }
+    });
+    // (back and forth: the insertions' own buckets are not needed after)
+    std::swap(bucket, other_bucket);
+    std::swap(insertion, other_insertion);
+  }
+  // 2. the buckets in the order of their first insertion, as Build has
+  // them: each bucket's run of sorted entries is listed under its first
+  // insertion's number (the run's first entry: the sort is stable)
+  ParallelFor(threads, 0, threads, [&](int t) {
+    std::fill(first_count_.begin() + part_begin(t), first_count_.begin() + part_begin(t + 1), 0);
+  });
+  ParallelFor(threads, 0, threads, [&](int t) {
+    for (int r = part_begin(t); r < part_begin(t + 1); ++r) {
+      if (r > 0 && bucket[r] == bucket[r - 1]) continue;
+      int end = r + 1;
+      while (end < n && bucket[end] == bucket[r]) ++end;
+      first_run_[insertion[r]] = r;
+      first_count_[insertion[r]] = end - r;
+    }
+  });
+  // 3. the entries, run after run in that order, and the slots
+  ParallelFor(threads, 0, threads, [&](int t) {
+    int sum = 0;
+    for (int i = part_begin(t); i < part_begin(t + 1); ++i) sum += first_count_[i];
+    part_count_[t + 1] = sum;
+  });
+  part_count_[0] = 0;
+  for (int t = 0; t < threads; ++t) part_count_[t + 1] += part_count_[t];
+  num_items_ = n;
+  if (static_cast<int>(items_.size()) < n) items_.resize(n);
+  ParallelFor(threads, 0, threads, [&](int t) {
+    int begin = part_count_[t];
+    for (int i = part_begin(t); i < part_begin(t + 1); ++i) {
+      const int count = first_count_[i];
+      if (count == 0) continue;
+      const int r = first_run_[i];
+      for (int k = 0; k < count; ++k) items_[begin + k] = inserted_item_[insertion[r + k]];
+      slots_[bucket[r]] = Slot{round_, begin, count};
+      begin += count;
+    }
+  });
 }
 
 }  // namespace tetcosim

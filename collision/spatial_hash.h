@@ -81,6 +81,21 @@ class SpatialHash {
   // Sorts the items inserted so far by bucket; queries need it.
   void Build();
 
+  // A round's insertions all at once, on several threads (instead of
+  // Insert, then Build): after Reset, ResizeInsertions(n), then
+  // SetInsertion(i, ...) for every i in [0, n) (from any thread, each i
+  // once), then BuildSorted: the same entries in the same order as Insert
+  // in the order of i and Build (the buckets in the order of their first
+  // insertion, each bucket's items in insertion order), found by a stable
+  // radix sort of the insertions by bucket instead of a count per slot
+  // (each insertion read and wrote its bucket's slot, at random, twice).
+  void ResizeInsertions(int n);
+  void SetInsertion(int i, const Eigen::Vector3i& cell, int item, int key = 0) {
+    inserted_bucket_[i] = Bucket(cell, key);
+    inserted_item_[i] = item;
+  }
+  void BuildSorted(int num_threads);
+
   // The entries of the bucket of (cell, key): a range [begin, end) of
   // indices into items(), in insertion order (deterministic). Empty if no
   // item went to that bucket in this round.
@@ -133,6 +148,15 @@ class SpatialHash {
   std::vector<int> inserted_item_;    // per insertion: the item
   std::vector<int> inserted_bucket_;  // per insertion: its bucket
   std::vector<int> items_;            // the items, grouped by bucket (after Build)
+  // BuildSorted's buffers: the insertions' buckets and numbers sorted by
+  // bucket (and the radix sort's other buffer for the numbers), a digit
+  // count per thread; per insertion, if it is its bucket's first, the
+  // bucket's run of sorted entries (start, size; 0 if not); per thread, the
+  // entries before its part
+  std::vector<int> sorted_bucket_, sorted_insertion_[2];
+  std::vector<int> digit_count_;
+  std::vector<int> first_run_, first_count_;
+  std::vector<int> part_count_;
   int num_items_ = 0;
 };
 

@@ -713,6 +713,14 @@ TEST(Determinism, SameResultsWhateverTheThreads) {
   slabs.Add(TetMesh::Build(MakeShape(slab)), Pose({0, 0, 0}));
   slabs.Add(TetMesh::Build(MakeShape(slab)), Pose({0.001, 0.002, 0.0215}, 0.01, {1, 2, 3}));
   ExpectSameResultsWhateverTheThreads(slabs, 3500);
+  // two fine cubes far into each other: over 16384 vertices to hash, which
+  // several threads hash at once (SpatialHash::BuildSorted), one thread
+  // one by one
+  TestScene cubes;
+  cubes.Add(TetMesh::Build(MakeShape("box:size=0.05:res=30")), Pose({0, 0, 0}));
+  cubes.Add(TetMesh::Build(MakeShape("box:size=0.05:res=30")),
+            Pose({0.04, 0.003, -0.002}, 0.05, {1, 2, 3}));
+  ExpectSameResultsWhateverTheThreads(cubes, 10000);
   // a sphere deep in a cube: most of its points get fallback values, from
   // triangles hashed after stage 4; on several threads the surfaces are
   // made in the same parallel region as stage 1, so this checks that

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <random>
+#include <tuple>
 
 namespace tetcosim {
 namespace {
@@ -35,6 +36,57 @@ TEST(SpatialHash, BucketHoldsEveryItemOfItsCellAndTimeStampsForgetOldRounds) {
       EXPECT_EQ(present, i % 2 == round % 2) << "item " << i << " round " << round;
       // everything found shares the bucket (cells may differ: hash collisions)
       for (int item : found) EXPECT_EQ(hash.Bucket(cells[item]), hash.Bucket(cells[i]));
+    }
+  }
+}
+
+// BuildSorted (all insertions at once, on 1 to 3 threads) gives what
+// Insert and Build give: the same entries in the same order, the same
+// range for every cell; over rounds of different sizes (the time stamps),
+// with keys, and with many items per cell.
+TEST(SpatialHash, BuildSortedMatchesInsertAndBuild) {
+  std::mt19937 rng(17);
+  for (int n : {0, 1, 37, 5000, 30000}) {
+    for (int spread : {3, 200}) {
+      std::uniform_int_distribution<int> coordinate(-spread, spread);
+      std::uniform_int_distribution<int> key(0, 3);
+      std::vector<Eigen::Vector3i> cells(n);
+      std::vector<int> keys(n);
+      for (int i = 0; i < n; ++i) {
+        cells[i] = {coordinate(rng), coordinate(rng), coordinate(rng)};
+        keys[i] = key(rng);
+      }
+      SpatialHash expected;
+      expected.Reset(0.1, n);
+      for (int i = 0; i < n; ++i) expected.Insert(cells[i], 1000 + i, keys[i]);
+      expected.Build();
+      for (int threads : {1, 2, 3}) {
+        SCOPED_TRACE(testing::Message()
+                     << n << " items, spread " << spread << ", " << threads << " threads");
+        SpatialHash sorted;
+        for (int round = 0; round < 2; ++round) {  // (the second over the first's slots)
+          sorted.Reset(0.1, n);
+          sorted.ResizeInsertions(n);
+          for (int i = n - 1; i >= 0; --i) sorted.SetInsertion(i, cells[i], 1000 + i, keys[i]);
+          sorted.BuildSorted(threads);
+          ASSERT_EQ(sorted.table_size(), expected.table_size());
+          ASSERT_EQ(sorted.num_items(), expected.num_items());
+          EXPECT_TRUE(
+              std::equal(sorted.items().begin(), sorted.items().end(), expected.items().begin()));
+          for (int i = 0; i < n; ++i) {
+            const SpatialHash::Range a = expected.Find(cells[i], keys[i]);
+            const SpatialHash::Range b = sorted.Find(cells[i], keys[i]);
+            ASSERT_EQ(std::tie(a.begin, a.end), std::tie(b.begin, b.end)) << "item " << i;
+          }
+          // cells of no item: the same (empty, or another cell's bucket)
+          for (int k = 0; k < 20; ++k) {
+            const Eigen::Vector3i cell(3 * spread + k, -k, 7);
+            const SpatialHash::Range a = expected.Find(cell, k % 5);
+            const SpatialHash::Range b = sorted.Find(cell, k % 5);
+            EXPECT_EQ(std::tie(a.begin, a.end), std::tie(b.begin, b.end));
+          }
+        }
+      }
     }
   }
 }
