@@ -829,7 +829,7 @@ void PenetrationSolver::SearchLargeTets(std::span<const CollisionObject> objects
   const int num_large = static_cast<int>(large_tets_.size());
   if (num_large == 0) return;
   const bool coarse = num_large >= kMinCoarseLargeTets;
-  if (coarse) BuildCoarseVertexHash();
+  if (coarse) BuildCoarseVertexHash(options_.num_threads);
   const int num_entries = hash_.num_items();
   const int threads = ThreadsFor(options_.num_threads, num_large, 4);
   if (static_cast<int>(thread_scratch_.size()) < threads) thread_scratch_.resize(threads);
@@ -870,24 +870,32 @@ void PenetrationSolver::SearchLargeTets(std::span<const CollisionObject> objects
       Schedule::kDynamic, 4);
 }
 
-void PenetrationSolver::BuildCoarseVertexHash() {
+void PenetrationSolver::BuildCoarseVertexHash(int num_threads) {
   const int num_entries = hash_.num_items();
   coarse_hash_.Reset(kCoarseCellFactor * cell_size_, num_entries);
-  for (int e = 0; e < num_entries; ++e) {
-    coarse_hash_.Insert(coarse_hash_.CellOf({hashed_.x[e], hashed_.y[e], hashed_.z[e]}), e);
+  auto cell = [&](int e) {
+    return coarse_hash_.CellOf({hashed_.x[e], hashed_.y[e], hashed_.z[e]});
+  };
+  const int threads = ThreadsFor(num_threads, num_entries, 4096);
+  if (threads > 1 && num_entries >= kMinSortedInsertions) {  // (as BuildVertexHash)
+    coarse_hash_.ResizeInsertions(num_entries);
+    ParallelFor(threads, 0, num_entries, [&](int e) { coarse_hash_.SetInsertion(e, cell(e), e); });
+    coarse_hash_.BuildSorted(threads);
+  } else {
+    for (int e = 0; e < num_entries; ++e) coarse_hash_.Insert(cell(e), e);
+    coarse_hash_.Build();
   }
-  coarse_hash_.Build();
   ResizePadded(coarse_.x, num_entries);
   ResizePadded(coarse_.y, num_entries);
   ResizePadded(coarse_.z, num_entries);
   coarse_.vertex.resize(num_entries);
-  for (int c = 0; c < num_entries; ++c) {
+  ParallelFor(threads, 0, num_entries, [&](int c) {
     const int e = coarse_hash_.items()[c];
     coarse_.x[c] = hashed_.x[e];
     coarse_.y[c] = hashed_.y[e];
     coarse_.z[c] = hashed_.z[e];
     coarse_.vertex[c] = e;
-  }
+  });
 }
 
 // the hits of every thread, grouped by vertex (a counting sort), each

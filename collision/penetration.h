@@ -243,7 +243,7 @@ class PenetrationSolver {
   // boxes: through coarse_hash_ when they are many, else each against
   // every entry of hashed_
   void SearchLargeTets(std::span<const CollisionObject> objects);
-  void BuildCoarseVertexHash();
+  void BuildCoarseVertexHash(int num_threads);
   void MergeHits();
   void HashSurfaces(std::span<const CollisionObject> objects, bool full);
   // Sets up the per-object arrays for the objects in surface_list_ and

@@ -721,6 +721,14 @@ TEST(Determinism, SameResultsWhateverTheThreads) {
   cubes.Add(TetMesh::Build(MakeShape("box:size=0.05:res=30")),
             Pose({0.04, 0.003, -0.002}, 0.05, {1, 2, 3}));
   ExpectSameResultsWhateverTheThreads(cubes, 10000);
+  // a fine box sunk into a coarse one: large tetrahedra (over 512 cells)
+  // looked up through the coarse grid, which is built from over 16384
+  // hashed vertices too
+  TestScene sunk;
+  sunk.Add(TetMesh::Build(MakeShape("box:size=0.2,0.2,0.1:res=8,8,4")), Pose({0, 0, 0}),
+           /*rigid=*/true);
+  sunk.Add(TetMesh::Build(MakeShape("box:size=0.05:res=30")), Pose({0.01, 0.02, 0.08}));
+  ExpectSameResultsWhateverTheThreads(sunk, 10000);
   // a sphere deep in a cube: most of its points get fallback values, from
   // triangles hashed after stage 4; on several threads the surfaces are
   // made in the same parallel region as stage 1, so this checks that
