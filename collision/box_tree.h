@@ -123,6 +123,7 @@ class BoxTree {
   std::vector<Node> nodes_;
   std::vector<std::uint32_t> codes_, codes_scratch_;  // (during Build) Morton codes, sorted
   std::vector<int> items_scratch_;                    // (during Build)
+  std::vector<int> digit_count_;                      // (during Build: the sort's)
   std::vector<int> items_;                            // the items, leaf by leaf
   std::vector<Eigen::Vector3d> item_lo_, item_hi_;    // their boxes, in items_' order
 };

@@ -64,11 +64,6 @@ constexpr int kMinChunksPerThread = 512 / kChunkTets;
 constexpr int kChunksPerGrab = std::max(1, 256 / kChunkTets);
 // stage 1's vertex pass classifies the vertices in blocks of this many
 constexpr int kVertexBlock = 1024;
-// the vertex hash is built on several threads (SpatialHash::BuildSorted)
-// from this many insertions; below, Insert and Build on one (the same
-// entries: the sort's fixed passes cost more than the threads save; 100k
-// tets, 4k insertions: 96 -> 143 us)
-constexpr int kMinSortedInsertions = 16384;
 // on several threads, the surfaces of up to this many objects with partners
 // per thread are made alongside stage 1 (Solve)
 constexpr int kMaxSurfacesAheadPerThread = 4;
@@ -597,25 +592,16 @@ void PenetrationSolver::BuildVertexHash(int num_threads) {
   }
   const int num_insertions = block_insertion_[num_blocks];
   hash_.Reset(cell_size_, num_insertions);
-  if (threads > 1 && num_insertions >= kMinSortedInsertions) {
-    hash_.ResizeInsertions(num_insertions);
-    ParallelFor(threads, 0, num_blocks, [&](int block) {
-      int i = block_insertion_[block];
-      for (int g = block * kVertexBlock; g < block_end(block); ++g) {
-        if (vertex_outcode_[g] != 0) continue;
-        if (keyed) hash_.SetInsertion(i++, vertex_cell_[g], g, vertex_object_[g] + 1);
-        if (unkeyed) hash_.SetInsertion(i++, vertex_cell_[g], g);
-      }
-    });
-    hash_.BuildSorted(threads);
-  } else {
-    for (int g = 0; g < num_vertices; ++g) {
+  hash_.ResizeInsertions(num_insertions);
+  ParallelFor(threads, 0, num_blocks, [&](int block) {
+    int i = block_insertion_[block];
+    for (int g = block * kVertexBlock; g < block_end(block); ++g) {
       if (vertex_outcode_[g] != 0) continue;
-      if (keyed) hash_.Insert(vertex_cell_[g], g, vertex_object_[g] + 1);
-      if (unkeyed) hash_.Insert(vertex_cell_[g], g);
+      if (keyed) hash_.SetInsertion(i++, vertex_cell_[g], g, vertex_object_[g] + 1);
+      if (unkeyed) hash_.SetInsertion(i++, vertex_cell_[g], g);
     }
-    hash_.Build();
-  }
+  });
+  hash_.BuildInsertions(threads);
   // what the tetrahedra test, in the hash's bucket order
   const int num_entries = hash_.num_items();
   ResizePadded(hashed_.x, num_entries);
@@ -877,14 +863,9 @@ void PenetrationSolver::BuildCoarseVertexHash(int num_threads) {
     return coarse_hash_.CellOf({hashed_.x[e], hashed_.y[e], hashed_.z[e]});
   };
   const int threads = ThreadsFor(num_threads, num_entries, 4096);
-  if (threads > 1 && num_entries >= kMinSortedInsertions) {  // (as BuildVertexHash)
-    coarse_hash_.ResizeInsertions(num_entries);
-    ParallelFor(threads, 0, num_entries, [&](int e) { coarse_hash_.SetInsertion(e, cell(e), e); });
-    coarse_hash_.BuildSorted(threads);
-  } else {
-    for (int e = 0; e < num_entries; ++e) coarse_hash_.Insert(cell(e), e);
-    coarse_hash_.Build();
-  }
+  coarse_hash_.ResizeInsertions(num_entries);
+  ParallelFor(threads, 0, num_entries, [&](int e) { coarse_hash_.SetInsertion(e, cell(e), e); });
+  coarse_hash_.BuildInsertions(threads);
   ResizePadded(coarse_.x, num_entries);
   ResizePadded(coarse_.y, num_entries);
   ResizePadded(coarse_.z, num_entries);

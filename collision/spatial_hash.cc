@@ -5,6 +5,7 @@
 #include <cassert>
 #include <cmath>
 
+#include "collision/radix_sort.h"
 #include "mesh/parallel_for.h"
 
 namespace tetcosim {
@@ -78,18 +79,30 @@ void SpatialHash::ResizeInsertions(int n) {
   inserted_item_.resize(n);
 }
 
-void SpatialHash::BuildSorted(int num_threads) {
+void SpatialHash::BuildInsertions(int num_threads, int min_sorted) {
+  const int n = static_cast<int>(inserted_item_.size());
+  if (num_threads > 1 && n >= min_sorted) {
+    BuildSorted(std::clamp(n / 4096, 1, num_threads));
+    return;
+  }
+  // Insert's count, then Build
+  for (int i = 0; i < n; ++i) {
+    Slot& slot = slots_[inserted_bucket_[i]];
+    if (slot.stamp != round_) {
+      slot.stamp = round_;
+      slot.count = 0;
+      used_buckets_.push_back(inserted_bucket_[i]);
+    }
+    ++slot.count;
+  }
+  Build();
+}
+
+void SpatialHash::BuildSorted(int threads) {
   const int n = static_cast<int>(inserted_item_.size());
   // each thread takes a contiguous part of the insertions (part t: [n t /
   // T, n (t + 1) / T)), or of the sorted entries
-  const int threads = std::clamp(n / 4096, 1, std::max(1, num_threads));
   auto part_begin = [&](int t) { return static_cast<int>(static_cast<long>(n) * t / threads); };
-  // 1. the insertions' numbers sorted by bucket, stably (a radix sort in
-  // digits of up to 11 bits, as few passes as the largest bucket needs)
-  const int bits = std::max(1, static_cast<int>(std::bit_width(table_size_ - 1)));
-  const int passes = (bits + 10) / 11;
-  const int digit_bits = (bits + passes - 1) / passes;
-  const int num_digits = 1 << digit_bits;
   if (static_cast<int>(sorted_bucket_.size()) < n) {
     sorted_bucket_.resize(n);
     sorted_insertion_[0].resize(n);
@@ -97,48 +110,17 @@ void SpatialHash::BuildSorted(int num_threads) {
     first_run_.resize(n);
     first_count_.resize(n);
   }
-  if (static_cast<int>(digit_count_.size()) < threads * num_digits) {
-    digit_count_.resize(threads * num_digits);
-  }
   if (static_cast<int>(part_count_.size()) < threads + 1) part_count_.resize(threads + 1);
-  int* bucket = inserted_bucket_.data();
-  int* insertion = sorted_insertion_[0].data();
-  int* other_bucket = sorted_bucket_.data();
-  int* other_insertion = sorted_insertion_[1].data();
+  // 1. the insertions' numbers sorted by bucket, stably (the insertions'
+  // own buckets are not needed after: they are the sort's)
+  std::vector<int>& insertions = sorted_insertion_[0];
   ParallelFor(threads, 0, threads, [&](int t) {
-    for (int i = part_begin(t); i < part_begin(t + 1); ++i) insertion[i] = i;
+    for (int i = part_begin(t); i < part_begin(t + 1); ++i) insertions[i] = i;
   });
-  for (int pass = 0; pass < passes; ++pass) {
-    const int shift = pass * digit_bits;
-    const unsigned mask = num_digits - 1;
-    ParallelFor(threads, 0, threads, [&](int t) {
-      int* count = digit_count_.data() + t * num_digits;
-      std::fill(count, count + num_digits, 0);
-      for (int i = part_begin(t); i < part_begin(t + 1); ++i) {
-        ++count[(static_cast<unsigned>(bucket[i]) >> shift) & mask];
-      }
-    });
-    // where each (digit, thread) starts: digit by digit, thread by thread
-    for (int d = 0, sum = 0; d < num_digits; ++d) {
-      for (int t = 0; t < threads; ++t) {
-        int& count = digit_count_[t * num_digits + d];
-        const int c = count;
-        count = sum;
-        sum += c;
-      }
-    }
-    ParallelFor(threads, 0, threads, [&](int t) {
-      int* next = digit_count_.data() + t * num_digits;
-      for (int i = part_begin(t); i < part_begin(t + 1); ++i) {
-        const int at = next[(static_cast<unsigned>(bucket[i]) >> shift) & mask]++;
-        other_bucket[at] = bucket[i];
-        other_insertion[at] = insertion[i];
-      }
-    });
-    // (back and forth: the insertions' own buckets are not needed after)
-    std::swap(bucket, other_bucket);
-    std::swap(insertion, other_insertion);
-  }
+  RadixSortPairs(n, static_cast<int>(std::bit_width(table_size_ - 1)), threads, inserted_bucket_,
+                 insertions, sorted_bucket_, sorted_insertion_[1], digit_count_);
+  const int* bucket = inserted_bucket_.data();
+  const int* insertion = insertions.data();
   // 2. the buckets in the order of their first insertion, as Build has
   // them: each bucket's run of sorted entries is listed under its first
   // insertion's number (the run's first entry: the sort is stable)

@@ -714,7 +714,7 @@ TEST(Determinism, SameResultsWhateverTheThreads) {
   slabs.Add(TetMesh::Build(MakeShape(slab)), Pose({0.001, 0.002, 0.0215}, 0.01, {1, 2, 3}));
   ExpectSameResultsWhateverTheThreads(slabs, 3500);
   // two fine cubes far into each other: over 16384 vertices to hash, which
-  // several threads hash at once (SpatialHash::BuildSorted), one thread
+  // several threads hash at once (SpatialHash::BuildInsertions), one thread
   // one by one
   TestScene cubes;
   cubes.Add(TetMesh::Build(MakeShape("box:size=0.05:res=30")), Pose({0, 0, 0}));

@@ -40,11 +40,12 @@ TEST(SpatialHash, BucketHoldsEveryItemOfItsCellAndTimeStampsForgetOldRounds) {
   }
 }
 
-// BuildSorted (all insertions at once, on 1 to 3 threads) gives what
-// Insert and Build give: the same entries in the same order, the same
-// range for every cell; over rounds of different sizes (the time stamps),
-// with keys, and with many items per cell.
-TEST(SpatialHash, BuildSortedMatchesInsertAndBuild) {
+// BuildInsertions (all insertions at once: counted on one thread, sorted
+// on 2 and 3, whatever their number) gives what Insert and Build give: the
+// same entries in the same order, the same range for every cell; over
+// rounds of different sizes (the time stamps), with keys, and with many
+// items per cell.
+TEST(SpatialHash, BuildInsertionsMatchesInsertAndBuild) {
   std::mt19937 rng(17);
   for (int n : {0, 1, 37, 5000, 30000}) {
     for (int spread : {3, 200}) {
@@ -68,7 +69,7 @@ TEST(SpatialHash, BuildSortedMatchesInsertAndBuild) {
           sorted.Reset(0.1, n);
           sorted.ResizeInsertions(n);
           for (int i = n - 1; i >= 0; --i) sorted.SetInsertion(i, cells[i], 1000 + i, keys[i]);
-          sorted.BuildSorted(threads);
+          sorted.BuildInsertions(threads, /*min_sorted=*/0);
           ASSERT_EQ(sorted.table_size(), expected.table_size());
           ASSERT_EQ(sorted.num_items(), expected.num_items());
           EXPECT_TRUE(
