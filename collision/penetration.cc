@@ -682,8 +682,7 @@ void PenetrationSolver::SearchChunk(std::span<const CollisionObject> objects, in
       continue;
     }
     for (int i = 0; i < 4; ++i) tet.corner[i] = x.row(vertices[i]).transpose();
-    InflatedBounds(tet.corner, tet.lo, tet.hi);
-    if (!BoxesOverlap(tet.lo, tet.hi, search_lo_[b], search_hi_[b])) continue;
+    InflatedBounds(tet.corner, tet.lo, tet.hi);  // (which overlaps the search box)
     tet.t = t;
     tet.have_coordinates = false;
     union_lo = union_lo.cwiseMin(tet.lo);
@@ -733,26 +732,30 @@ void PenetrationSolver::SearchChunk(std::span<const CollisionObject> objects, in
       }
       return;
     }
-    // gather the chunk's candidates, then test them tet by tet
-    gathered.x.clear();
-    gathered.y.clear();
-    gathered.z.clear();
-    gathered.vertex.clear();  // (the entry in hashed_)
-    gathered.object.clear();
+    // gather the chunk's candidates, then test them tet by tet (the arrays
+    // only grow: past the last candidate, ForEachInside reads what an
+    // earlier chunk left, and masks it off; resizing them each time, with
+    // NaN padding, was 8% of stage 1 on the 10% cubes)
+    int num_gathered = 0;
     for_each_in_cells(cell_lo, cell_hi, Box4(region_lo, region_hi), [&](int e) {
       const int a = object_of(e);
       if (a < 0) return;
-      gathered.x.push_back(hashed_.x[e]);
-      gathered.y.push_back(hashed_.y[e]);
-      gathered.z.push_back(hashed_.z[e]);
-      gathered.vertex.push_back(e);
-      gathered.object.push_back(a);
+      if (num_gathered + kSimdPadding >= static_cast<int>(gathered.vertex.size())) {
+        const int size = 2 * (num_gathered + kSimdPadding + 1);
+        for (std::vector<double>* values : {&gathered.x, &gathered.y, &gathered.z}) {
+          values->resize(size);
+        }
+        gathered.vertex.resize(size);
+        gathered.object.resize(size);
+      }
+      gathered.x[num_gathered] = hashed_.x[e];
+      gathered.y[num_gathered] = hashed_.y[e];
+      gathered.z[num_gathered] = hashed_.z[e];
+      gathered.vertex[num_gathered] = e;  // (the entry in hashed_)
+      gathered.object[num_gathered] = a;
+      ++num_gathered;
     });
-    const int num_gathered = static_cast<int>(gathered.vertex.size());
     if (num_gathered == 0) return;
-    ResizePadded(gathered.x, num_gathered);
-    ResizePadded(gathered.y, num_gathered);
-    ResizePadded(gathered.z, num_gathered);
     for (int c = 0; c < chunk_size; ++c) {
       SearchedTet& tet = chunk[c];
       const Eigen::Vector3d tet_lo = tet.lo.cwiseMax(lo);
@@ -1093,19 +1096,14 @@ bool PenetrationSolver::TriangleInRegion(std::span<const CollisionObject> object
                                          int f, TriangleRegion region) const {
   if (region == TriangleRegion::kAll) return true;
   const Triangles& surface = objects[object].mesh->surface();
-  // in the search box: not with all three corners beyond one of its sides
-  // (the vertices' outcodes, no positions read), and the box overlaps it
+  // in the search box unless all three corners lie beyond one of its sides:
+  // told by the vertices' outcodes, no positions read (a box around points
+  // is apart from the search box exactly when the points all lie beyond
+  // one of its sides, so the triangle's box, grown outward, overlaps it
+  // otherwise)
   const std::uint8_t* outcode = vertex_outcode_.data() + vertex_offset_[object];
-  const bool beyond_a_side =
-      (outcode[surface(f, 0)] & outcode[surface(f, 1)] & outcode[surface(f, 2)]) != 0;
-  bool inside = false;
-  if (!beyond_a_side) {
-    const Positions& x = *objects[object].positions;
-    Eigen::Vector3d corner[3], lo, hi;
-    for (int k = 0; k < 3; ++k) corner[k] = x.row(surface(f, k)).transpose();
-    InflatedBounds(corner, lo, hi);
-    inside = BoxesOverlap(lo, hi, search_lo_[object], search_hi_[object]);
-  }
+  const bool inside =
+      (outcode[surface(f, 0)] & outcode[surface(f, 1)] & outcode[surface(f, 2)]) == 0;
   return inside == (region == TriangleRegion::kInside);
 }
 
