@@ -44,19 +44,6 @@ void SpatialHash::Reset(double cell_size, int num_items) {
   num_items_ = 0;
 }
 
-void SpatialHash::Insert(const Eigen::Vector3i& cell, int item, int key) {
-  const int bucket = Bucket(cell, key);
-  Slot& slot = slots_[bucket];
-  if (slot.stamp != round_) {
-    slot.stamp = round_;
-    slot.count = 0;
-    used_buckets_.push_back(bucket);
-  }
-  ++slot.count;
-  inserted_item_.push_back(item);
-  inserted_bucket_.push_back(bucket);
-}
-
 void SpatialHash::Build() {
   // counting sort: each used bucket's range starts after the previous one's
   int begin = 0;

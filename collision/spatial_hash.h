@@ -75,8 +75,20 @@ class SpatialHash {
     return static_cast<int>((static_cast<Uint128>(low) * table_size_) >> 64);
   }
 
-  // Adds item to the bucket of (cell, key).
-  void Insert(const Eigen::Vector3i& cell, int item, int key = 0);
+  // Adds item to the bucket of (cell, key). (Inline: stage 2's triangle
+  // hashes make one insertion per cell of each triangle's box.)
+  void Insert(const Eigen::Vector3i& cell, int item, int key = 0) {
+    const int bucket = Bucket(cell, key);
+    Slot& slot = slots_[bucket];
+    if (slot.stamp != round_) {
+      slot.stamp = round_;
+      slot.count = 0;
+      used_buckets_.push_back(bucket);
+    }
+    ++slot.count;
+    inserted_item_.push_back(item);
+    inserted_bucket_.push_back(bucket);
+  }
 
   // Sorts the items inserted so far by bucket; queries need it.
   void Build();
