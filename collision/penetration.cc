@@ -735,7 +735,7 @@ void PenetrationSolver::SearchChunk(std::span<const CollisionObject> objects, in
     // gather the chunk's candidates, then test them tet by tet (the arrays
     // only grow: past the last candidate, ForEachInside reads what an
     // earlier chunk left, and masks it off; resizing them each time, with
-    // NaN padding, was 8% of stage 1 on the 10% cubes)
+    // NaN padding, was 8% of the chunks' instructions on the 10% cubes)
     int num_gathered = 0;
     for_each_in_cells(cell_lo, cell_hi, Box4(region_lo, region_hi), [&](int e) {
       const int a = object_of(e);
