@@ -173,6 +173,12 @@ class Box4 {
   Double4 lo_x_, lo_y_, lo_z_, hi_x_, hi_y_, hi_z_;
 };
 
+// Lane j of four vectors by coordinate (values[k][j]: coordinate k of
+// vector j), as a vector.
+Eigen::Vector3d Lane(const double (&values)[3][4], int j) {
+  return {values[0][j], values[1][j], values[2][j]};
+}
+
 // SegmentTriangle (geometry.h) for four triangles by coordinate (lane j of
 // corner[k], edge0[k], edge1[k] and edge_lengths: TriangleGeometry's
 // corner[0], edge[0], edge[1] and edge_lengths of triangle j), the same
@@ -1356,9 +1362,7 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
         if (small) {
           const SmallTriangleGroup& group = small_[object_small_begin_[b] + f / 4];
           const int lane = f % 4;
-          return Eigen::Vector3d(group.edge0[0][lane], group.edge0[1][lane], group.edge0[2][lane])
-              .cross(Eigen::Vector3d(group.edge1[0][lane], group.edge1[1][lane],
-                                     group.edge1[2][lane]));
+          return Lane(group.edge0, lane).cross(Lane(group.edge1, lane));
         }
         const TriangleGeometry& triangle = triangle_geometry_[best_entry];
         return triangle.edge[0].cross(triangle.edge[1]);
@@ -1553,12 +1557,11 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
     for (int f = 0; f < object_entry_end_[b] - object_entry_begin_[b]; ++f) {
       const SmallTriangleGroup& group = groups[f / 4];
       const int lane = f % 4;
-      test_face(f, Eigen::Vector3d(group.lo[0][lane], group.lo[1][lane], group.lo[2][lane]),
-                Eigen::Vector3d(group.hi[0][lane], group.hi[1][lane], group.hi[2][lane]), [&] {
-                  return std::array<Eigen::Vector3d, 3>{x.row(surface(f, 0)).transpose(),
-                                                        x.row(surface(f, 1)).transpose(),
-                                                        x.row(surface(f, 2)).transpose()};
-                });
+      test_face(f, Lane(group.lo, lane), Lane(group.hi, lane), [&] {
+        return std::array<Eigen::Vector3d, 3>{x.row(surface(f, 0)).transpose(),
+                                              x.row(surface(f, 1)).transpose(),
+                                              x.row(surface(f, 2)).transpose()};
+      });
     }
     return std::isfinite(best);
   }

@@ -73,15 +73,7 @@ void SpatialHash::BuildInsertions(int num_threads, int min_sorted) {
     return;
   }
   // Insert's count, then Build
-  for (int i = 0; i < n; ++i) {
-    Slot& slot = slots_[inserted_bucket_[i]];
-    if (slot.stamp != round_) {
-      slot.stamp = round_;
-      slot.count = 0;
-      used_buckets_.push_back(inserted_bucket_[i]);
-    }
-    ++slot.count;
-  }
+  for (int i = 0; i < n; ++i) Count(inserted_bucket_[i]);
   Build();
 }
 

@@ -79,13 +79,7 @@ class SpatialHash {
   // hashes make one insertion per cell of each triangle's box.)
   void Insert(const Eigen::Vector3i& cell, int item, int key = 0) {
     const int bucket = Bucket(cell, key);
-    Slot& slot = slots_[bucket];
-    if (slot.stamp != round_) {
-      slot.stamp = round_;
-      slot.count = 0;
-      used_buckets_.push_back(bucket);
-    }
-    ++slot.count;
+    Count(bucket);
     inserted_item_.push_back(item);
     inserted_bucket_.push_back(bucket);
   }
@@ -164,6 +158,17 @@ class SpatialHash {
   std::vector<int> inserted_item_;    // per insertion: the item
   std::vector<int> inserted_bucket_;  // per insertion: its bucket
   std::vector<int> items_;            // the items, grouped by bucket (after Build)
+  // One more insertion into bucket: its count in this round (a bucket's
+  // first use in the round resets it and lists the bucket).
+  void Count(int bucket) {
+    Slot& slot = slots_[bucket];
+    if (slot.stamp != round_) {
+      slot.stamp = round_;
+      slot.count = 0;
+      used_buckets_.push_back(bucket);
+    }
+    ++slot.count;
+  }
   // the sorted build (BuildInsertions on several threads)
   void BuildSorted(int threads);
   // BuildSorted's buffers: the radix sort's other buffer for the buckets,

@@ -660,8 +660,6 @@ TEST(ClosestFeature, AcceleratedSearchMatchesBruteForce) {
   }
 }
 
-// the solver's results with 1, 2 and 3 threads: the same, bit for bit (3:
-// more threads than cores here, and than the groups of some loops)
 // The same results bit for bit (what: the run compared, for messages).
 void ExpectSameResults(const std::vector<PenetrationResult>& expected,
                        const std::vector<PenetrationResult>& actual, const std::string& what) {
@@ -678,6 +676,8 @@ void ExpectSameResults(const std::vector<PenetrationResult>& expected,
   }
 }
 
+// the solver's results with 1, 2 and 3 threads: the same, bit for bit (3:
+// more threads than cores here, and than the groups of some loops)
 void ExpectSameResultsWhateverTheThreads(const TestScene& scene, size_t min_results) {
   for (DepthMethod method : {DepthMethod::kConsistent, DepthMethod::kClosest}) {
     std::vector<PenetrationResult> runs[3];
