@@ -1190,15 +1190,19 @@ void PenetrationSolver::BuildTriangleHash(int object) {
   hashed.hash.Build();
   const int num_entries = hashed.hash.num_items();
   const std::span<const int> items = hashed.hash.items();
+  double* lo[3];
+  double* hi[3];
   for (int k = 0; k < 3; ++k) {
-    std::vector<double>& lo = hashed.boxes.lo[k];
-    std::vector<double>& hi = hashed.boxes.hi[k];
-    ResizePadded(lo, num_entries);
-    ResizePadded(hi, num_entries);
-    for (int e = 0; e < num_entries; ++e) {
-      const TriangleEntry& entry = triangles_[items[e]];
-      lo[e] = entry.lo[k];
-      hi[e] = entry.hi[k];
+    ResizePadded(hashed.boxes.lo[k], num_entries);
+    ResizePadded(hashed.boxes.hi[k], num_entries);
+    lo[k] = hashed.boxes.lo[k].data();
+    hi[k] = hashed.boxes.hi[k].data();
+  }
+  for (int e = 0; e < num_entries; ++e) {  // (one pass: an entry read once)
+    const TriangleEntry& entry = triangles_[items[e]];
+    for (int k = 0; k < 3; ++k) {
+      lo[k][e] = entry.lo[k];
+      hi[k][e] = entry.hi[k];
     }
   }
 }
