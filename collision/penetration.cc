@@ -102,6 +102,9 @@ std::uint8_t Outcode(const Eigen::Vector3d& p, const Eigen::Vector3d& lo,
                                    (p.z() < lo.z()) << 4 | (p.z() > hi.z()) << 5);
 }
 
+// (a triangle's three corners are read as one row, by CornersInBox's callers)
+static_assert(Triangles::IsRowMajor);
+
 // Whether a triangle (its three corners' vertex numbers) may meet a box,
 // told by its corners' outcodes against it: not when all three lie beyond
 // one of the box's sides (then so does the triangle's box, even grown
