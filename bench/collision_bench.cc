@@ -1,12 +1,12 @@
 // Penetration solver cost, per stage and per colliding point, for the
 // scenes the collision issue names: two cubes of 1250 tetrahedra at several
 // overlaps, 120 paper spheres (20 tetrahedra each) packed with many
-// contacts (and a pile of 1200), a scene of about 100k tetrahedra, and 1 to 10 copies of the
-// two-cube scene (cost against the number of colliding points); a coarse
-// box's corner in a fine ball (edges hundreds of cells long), a ball
-// enclosed in a block (the closest-feature fallback), and fine cubes on a
-// coarse slab (triangles too large to hash) and on a less coarse one
-// (tetrahedra too large to search cell by cell).
+// contacts (and piles of 240 to 9600), a scene of about 100k tetrahedra,
+// and 1 to 10 copies of the two-cube scene (cost against the number of
+// colliding points); a coarse box's corner in a fine ball (edges hundreds
+// of cells long), a ball enclosed in a block (the closest-feature
+// fallback), and fine cubes on a coarse slab (triangles too large to hash)
+// and on a less coarse one (tetrahedra too large to search cell by cell).
 //
 // Counters: colliding points, intersection edges (stage 2), microseconds
 // per colliding point (from the solver's own wall-clock timing of Solve),
@@ -129,13 +129,16 @@ BENCHMARK(BM_CubePairsScaling)
 
 // paper spheres (radius 2 cm, 20 tetrahedra) in a lattice of 6 layers
 // spaced 1.5 radii with a seeded jitter: every sphere overlaps its
-// neighbours; 120 in 5 x 4 x 6 (the paper's scene), and a pile ten times
-// as large, 20 x 10 x 6 (how the cost per point grows with a pile's size)
+// neighbours; 120 in 5 x 4 x 6 (the paper's scene), and piles up to 80
+// times as large, about as wide as long (how the cost per point grows with
+// a pile's size): 240 in 5 x 8, 480 in 10 x 8, 1200 in 20 x 10, 2400 in
+// 20 x 20, 4800 in 40 x 20, 9600 in 40 x 40 (x 6 layers)
 void BM_PaperSpheres(benchmark::State& state) {
   Scene scene;
   const TetMesh& sphere = scene.Mesh("sphere:size=0.02:res=0");
-  const int rows = state.range(0) == 120 ? 5 : 20;
-  const int columns = static_cast<int>(state.range(0)) / (6 * rows);
+  const int count = static_cast<int>(state.range(0));
+  const int rows = count <= 240 ? 5 : count <= 480 ? 10 : count <= 2400 ? 20 : 40;
+  const int columns = count / (6 * rows);
   std::mt19937 rng(2004);
   std::uniform_real_distribution<double> jitter(-0.003, 0.003);
   for (int i = 0; i < rows; ++i) {
@@ -152,6 +155,11 @@ void BM_PaperSpheres(benchmark::State& state) {
 }
 BENCHMARK(BM_PaperSpheres)
     ->ArgsProduct({{120, 1200}, {0, 1}, {1, 2}})
+    ->ArgNames({"spheres", "closest", "threads"})
+    ->Unit(benchmark::kMicrosecond)
+    ->UseRealTime();
+BENCHMARK(BM_PaperSpheres)
+    ->ArgsProduct({{240, 480, 2400, 4800, 9600}, {0}, {1}})
     ->ArgNames({"spheres", "closest", "threads"})
     ->Unit(benchmark::kMicrosecond)
     ->UseRealTime();

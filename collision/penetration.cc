@@ -413,15 +413,39 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
     object_lo_[o] = lo;
     object_hi_[o] = hi;
   }
+  // the sweep axis: the one along which the boxes' centres spread most
+  // (their variance), so that the fewest boxes start before a box ends
+  // along it (a pile of 9600 spheres, 20 x 80 x 6, swept along x: 360
+  // boxes tested a box, 13 overlapping it, and the broad phase was 18% of
+  // the solve's instructions; along y, 10%)
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  int num_in = 0;
+  for (int o = 0; o < num_objects; ++o) {
+    if (object_lo_[o].x() > object_hi_[o].x()) continue;  // (left out)
+    mean += 0.5 * (object_lo_[o] + object_hi_[o]);
+    ++num_in;
+  }
+  mean /= std::max(1, num_in);
+  Eigen::Vector3d spread = Eigen::Vector3d::Zero();
+  for (int o = 0; o < num_objects; ++o) {
+    if (object_lo_[o].x() > object_hi_[o].x()) continue;
+    spread += (0.5 * (object_lo_[o] + object_hi_[o]) - mean).cwiseAbs2();
+  }
+  int axis = 0;
+  spread.maxCoeff(&axis);  // (the first of equal ones)
   pairs_.clear();
   sweep_order_.resize(num_objects);
-  for (int o = 0; o < num_objects; ++o) sweep_order_[o] = o;
+  sweep_key_.resize(num_objects);
+  for (int o = 0; o < num_objects; ++o) {
+    sweep_order_[o] = o;
+    sweep_key_[o] = object_lo_[o][axis];
+  }
   std::sort(sweep_order_.begin(), sweep_order_.end(), [&](int a, int b) {
-    return object_lo_[a].x() != object_lo_[b].x() ? object_lo_[a].x() < object_lo_[b].x() : a < b;
+    return sweep_key_[a] != sweep_key_[b] ? sweep_key_[a] < sweep_key_[b] : a < b;
   });
   // the boxes in sweep order by coordinate: a box is tested against the
-  // boxes after it that start before it ends along x, four at a time (in a
-  // pile of 120 spheres, about 50 of them per box)
+  // boxes after it that start before it ends along the axis, four at a
+  // time (in a pile of 120 spheres, about 50 of them per box)
   for (int k = 0; k < 3; ++k) {
     ResizePadded(sweep_lo_[k], num_objects);
     ResizePadded(sweep_hi_[k], num_objects);
@@ -430,16 +454,16 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
       sweep_hi_[k][i] = object_hi_[sweep_order_[i]][k];
     }
   }
+  const std::vector<double>& sweep_lo = sweep_lo_[axis];
   for (int i = 0; i < num_objects; ++i) {
     const int a = sweep_order_[i];
-    if (object_lo_[a].x() > object_hi_[a].x()) continue;  // (left out)
+    if (object_lo_[a].x() > object_hi_[a].x()) continue;  // (left out: sorted last)
     if (objects[a].self_collision) pairs_.push_back({a, a});
-    // (the boxes that start before this one ends, by bisection: in a pile
-    // of 9600 spheres, about 360 boxes follow a box along x, 13 overlap it)
+    // (the boxes that start before this one ends, by bisection)
     const int end =
-        static_cast<int>(std::upper_bound(sweep_lo_[0].begin() + i + 1,
-                                          sweep_lo_[0].begin() + num_objects, object_hi_[a].x()) -
-                         sweep_lo_[0].begin());
+        static_cast<int>(std::upper_bound(sweep_lo.begin() + i + 1, sweep_lo.begin() + num_objects,
+                                          object_hi_[a][axis]) -
+                         sweep_lo.begin());
     const Box4 box(object_lo_[a], object_hi_[a]);
     for (int j = i + 1; j < end; j += 4) {
       for (unsigned bits = box.Overlapping(sweep_lo_, sweep_hi_, j, end); bits != 0;

@@ -150,6 +150,29 @@ TEST(CollidingPoints, HashMatchesBruteForceInCrowdedScenes) {
   }
 }
 
+TEST(CollidingPoints, RowsAlongEachAxisMatchBruteForce) {
+  // the broad phase sweeps along the axis where the objects spread most: a
+  // row of overlapping bodies along x, y or z (the one non-spreading axes
+  // jittered a little), each against brute force
+  for (int axis = 0; axis < 3; ++axis) {
+    SCOPED_TRACE(axis);
+    std::mt19937 rng(5 + axis);
+    std::uniform_real_distribution<double> jitter(-0.004, 0.004);
+    TestScene scene;
+    for (int k = 0; k < 12; ++k) {
+      Eigen::Vector3d at(jitter(rng), jitter(rng), jitter(rng));
+      at[axis] += 0.035 * k;
+      scene.Add(TetMesh::Build(MakeShape(k % 2 ? "sphere:size=0.025:res=1"
+                                               : "box:size=0.04,0.035,0.03:res=2")),
+                Pose(at, jitter(rng) * 100), /*rigid=*/k % 5 == 4);
+    }
+    ExpectSameCollidingPointsAtThreeCellSizes(scene);
+    PenetrationSolver solver;
+    solver.Solve(scene.objects);
+    EXPECT_GT(solver.stats().colliding, 0);
+  }
+}
+
 // Stages 2 and 3 by brute force (method.md): for every colliding point p
 // and neighbour q not inside B, the crossing of q -> p with any of B's
 // surface triangles nearest q, its smooth normal, and the border point's
