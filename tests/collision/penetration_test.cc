@@ -152,8 +152,8 @@ TEST(CollidingPoints, HashMatchesBruteForceInCrowdedScenes) {
 
 TEST(CollidingPoints, RowsAlongEachAxisMatchBruteForce) {
   // the broad phase sweeps along the axis where the objects spread most: a
-  // row of overlapping bodies along x, y or z (the one non-spreading axes
-  // jittered a little), each against brute force
+  // row of overlapping bodies along x, y or z (jittered a little across
+  // it), each against brute force
   for (int axis = 0; axis < 3; ++axis) {
     SCOPED_TRACE(axis);
     std::mt19937 rng(5 + axis);
