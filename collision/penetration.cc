@@ -379,10 +379,12 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
   inverse_cell_size_ = 1.0 / cell_size_;  // (as SpatialHash::Reset computes it)
   // broad phase: bounding boxes; per object B its partners (the objects
   // whose boxes overlap B's and that may collide with it, B itself with
-  // self-collision), found by sweep and prune along x, and the region where
+  // self-collision), found by sweep and prune (below), and the region where
   // they can reach into B: the union of the boxes' overlaps.
   object_lo_.resize(num_objects);
   object_hi_.resize(num_objects);
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();  // (of the boxes' centres, left out aside)
+  int num_in = 0;
   for (int o = 0; o < num_objects; ++o) {
     // (row by row, in one pass: Eigen's column-wise reduction of a
     // row-major matrix walks each column on its own, six passes)
@@ -409,39 +411,31 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
       hi = -lo;
     } else {
       Inflate(lo, hi);
+      mean += 0.5 * (lo + hi);
+      ++num_in;
     }
     object_lo_[o] = lo;
     object_hi_[o] = hi;
   }
+  mean /= std::max(1, num_in);
   // the sweep axis: the one along which the boxes' centres spread most
   // (their variance), so that the fewest boxes start before a box ends
   // along it (a pile of 9600 spheres, 20 x 80 x 6, swept along x: 360
   // boxes tested a box, 13 overlapping it, and the broad phase was 18% of
   // the solve's instructions; along y, 10%)
-  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-  int num_in = 0;
-  for (int o = 0; o < num_objects; ++o) {
-    if (object_lo_[o].x() > object_hi_[o].x()) continue;  // (left out)
-    mean += 0.5 * (object_lo_[o] + object_hi_[o]);
-    ++num_in;
-  }
-  mean /= std::max(1, num_in);
   Eigen::Vector3d spread = Eigen::Vector3d::Zero();
   for (int o = 0; o < num_objects; ++o) {
-    if (object_lo_[o].x() > object_hi_[o].x()) continue;
+    if (object_lo_[o].x() > object_hi_[o].x()) continue;  // (left out)
     spread += (0.5 * (object_lo_[o] + object_hi_[o]) - mean).cwiseAbs2();
   }
   int axis = 0;
   spread.maxCoeff(&axis);  // (the first of equal ones)
   pairs_.clear();
   sweep_order_.resize(num_objects);
-  sweep_key_.resize(num_objects);
-  for (int o = 0; o < num_objects; ++o) {
-    sweep_order_[o] = o;
-    sweep_key_[o] = object_lo_[o][axis];
-  }
+  for (int o = 0; o < num_objects; ++o) sweep_order_[o] = o;
   std::sort(sweep_order_.begin(), sweep_order_.end(), [&](int a, int b) {
-    return sweep_key_[a] != sweep_key_[b] ? sweep_key_[a] < sweep_key_[b] : a < b;
+    const double a_lo = object_lo_[a][axis], b_lo = object_lo_[b][axis];
+    return a_lo != b_lo ? a_lo < b_lo : a < b;
   });
   // the boxes in sweep order by coordinate: a box is tested against the
   // boxes after it that start before it ends along the axis, four at a

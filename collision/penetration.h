@@ -311,8 +311,7 @@ class PenetrationSolver {
   // itself with self-collision) reach into it; empty (lo > hi) if none
   std::vector<Eigen::Vector3d> object_lo_, object_hi_;  // #objects
   std::vector<Eigen::Vector3d> search_lo_, search_hi_;  // #objects
-  std::vector<double> sweep_key_;                       // #objects: box's low end on the axis
-  std::vector<int> sweep_order_;                        // #objects, by sweep_key_
+  std::vector<int> sweep_order_;                        // #objects, by lo on the sweep axis
   std::vector<double> sweep_lo_[3], sweep_hi_[3];       // their boxes in that order (padded)
   std::vector<std::array<int, 2>> pairs_;               // (object, partner), both ways
   struct Partner {
