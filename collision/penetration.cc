@@ -13,12 +13,15 @@
 #include <chrono>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <cstring>
 #include <limits>
 #include <numeric>
+#include <string>
 #include <thread>
 
 #include "collision/geometry.h"
+#include "mesh/error.h"
 #include "mesh/group_by_key.h"
 #include "mesh/parallel_for.h"
 
@@ -289,7 +292,19 @@ const char* DepthSourceName(DepthSource source) {
   return "?";
 }
 
-PenetrationSolver::PenetrationSolver(PenetrationOptions options) : options_(options) {}
+PenetrationSolver::PenetrationSolver(PenetrationOptions options) {
+  set_options(options);
+}
+
+void PenetrationSolver::set_options(const PenetrationOptions& options) {
+  if (!(options.cell_size >= 0.0) || !std::isfinite(options.cell_size)) {
+    char value[32];
+    std::snprintf(value, sizeof(value), "%g", options.cell_size);
+    throw Error(std::string("penetration solver: the cell size is ") + value +
+                " m; give a finite length >= 0 (0: the average edge length)");
+  }
+  options_ = options;
+}
 
 void PenetrationSolver::ResizePadded(std::vector<double>& values, int n) {
   values.resize(n + kSimdPadding);
@@ -373,9 +388,8 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
     std::fill(vertex_object_.begin() + vertex_offset_[o],
               vertex_object_.begin() + vertex_offset_[o + 1], o);
   }
-  cell_size_ = options_.cell_size > 0.0 ? options_.cell_size
-               : edge_count > 0         ? edge_sum / static_cast<double>(edge_count)
-                                        : 1.0;
+  length_scale_ = edge_count > 0 ? edge_sum / static_cast<double>(edge_count) : 1.0;
+  cell_size_ = options_.cell_size > 0.0 ? options_.cell_size : length_scale_;
   inverse_cell_size_ = 1.0 / cell_size_;  // (as SpatialHash::Reset computes it)
   // broad phase: bounding boxes; per object B its partners (the objects
   // whose boxes overlap B's and that may collide with it, B itself with
@@ -1242,7 +1256,7 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
   source_.resize(num_hits);
   layer_.assign(num_hits, -1);
   // a crossing closer than this to p means p is on the surface: depth 0
-  const double on_surface = 1e-9 * cell_size_;
+  const double on_surface = 1e-9 * length_scale_;
   // per thread: the query in which each triangle entry was last tested
   if (static_cast<int>(thread_scratch_.size()) < num_threads) thread_scratch_.resize(num_threads);
   for (int i = 0; i < num_threads; ++i) {
@@ -1490,7 +1504,7 @@ void PenetrationSolver::Propagate(std::span<const CollisionObject> objects) {
   for (int i = 0; i < num_threads; ++i) {
     for (int h : thread_scratch_[i].candidates) add_to_next_layer(h);
   }
-  const double coincident = 1e-9 * cell_size_;
+  const double coincident = 1e-9 * length_scale_;
   int layer = 0;
   while (!next_frontier_.empty()) {
     ++layer;

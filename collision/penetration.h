@@ -78,8 +78,9 @@ struct PenetrationResult {
 
 struct PenetrationOptions {
   DepthMethod method = DepthMethod::kConsistent;
-  // Hash cell size in metres; 0 picks the average edge length over all
-  // objects (Teschner et al. 2003).
+  // Hash cell size in metres (finite, >= 0); 0 picks the average edge
+  // length over all objects (Teschner et al. 2003). A speed setting only:
+  // results do not depend on it.
   double cell_size = 0.0;
   // Threads for the parallel stages (1 = serial). Results do not depend on it.
   int num_threads = 1;
@@ -118,10 +119,11 @@ struct PenetrationStats {
 
 class PenetrationSolver {
  public:
+  // Throws Error for a cell size that is negative, infinite or NaN.
   explicit PenetrationSolver(PenetrationOptions options = {});
 
   const PenetrationOptions& options() const { return options_; }
-  void set_options(const PenetrationOptions& options) { options_ = options; }
+  void set_options(const PenetrationOptions& options);
 
   // Finds every colliding point and its depth and direction. Results are
   // ordered by (object, vertex, penetrated). The returned reference stays
@@ -132,6 +134,10 @@ class PenetrationSolver {
   const PenetrationTimings& timings() const { return timings_; }
   const PenetrationStats& stats() const { return stats_; }
   double cell_size() const { return cell_size_; }
+  // The average edge length over the objects of the last Solve() (1 m if
+  // none has edges): lengths that tell points apart (a point on a surface,
+  // two coincident points) are relative to it, never to the cell size.
+  double length_scale() const { return length_scale_; }
 
  private:
   // a colliding point: global vertex inside object `penetrated`
@@ -293,7 +299,8 @@ class PenetrationSolver {
                            const Eigen::Vector3d& p, int exclude, Eigen::Vector3d& closest) const;
 
   PenetrationOptions options_;
-  double cell_size_ = 1.0;  // of every hash (vertices, each object's triangles), metres
+  double cell_size_ = 1.0;     // of every hash (vertices, each object's triangles), metres
+  double length_scale_ = 1.0;  // the objects' average edge length, metres
   double inverse_cell_size_ = 1.0;
   // the grid cell of p (the same in every hash): read by several threads
   // while one of them resets a hash

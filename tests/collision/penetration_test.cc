@@ -12,6 +12,7 @@
 #include <tuple>
 
 #include "collision/geometry.h"
+#include "mesh/error.h"
 #include "tests/collision/scene_helpers.h"
 
 namespace tetcosim {
@@ -194,7 +195,7 @@ void ExpectBorderPointsMatchBruteForce(const TestScene& scene, double cell_size,
   for (size_t o = 0; o < scene.objects.size(); ++o) {
     ComputeVertexNormals(*scene.objects[o].positions, scene.objects[o].mesh->surface(), normals[o]);
   }
-  const double on_surface = 1e-9 * cell_size;
+  const double on_surface = 1e-9 * solver.length_scale();
   int border = 0;
   for (const PenetrationResult& r : results) {
     const TetMesh& mesh_a = *scene.objects[r.object].mesh;
@@ -831,6 +832,63 @@ TEST(Determinism, ReusedSolverMatchesANewOne) {
                               " threads, scene " + std::to_string(i));
       }
     }
+  }
+}
+
+// The cell size is a speed setting: whatever it is (from a fortieth of
+// the average edge to ten million times it), the results are the same,
+// bit for bit, as with the default. (Tolerances such as "on the surface"
+// go with the scene's edges, not with the cell: a huge cell once made every
+// crossing count as on the surface, and every border depth 0.)
+TEST(Determinism, SameResultsWhateverTheCellSize) {
+  TestScene cubes;  // deep: border and propagated points
+  cubes.Add("box:size=0.04:res=5", {0, 0, 0});
+  cubes.Add("box:size=0.04:res=4", {0.05, 0.004, -0.003});
+  std::vector<const TestScene*> scenes = {&cubes};
+  TestScene crowded = CrowdedScene(1);  // self-collision, rigid bodies, small bodies
+  scenes.push_back(&crowded);
+  for (const TestScene* scene : scenes) {
+    for (DepthMethod method : {DepthMethod::kConsistent, DepthMethod::kClosest}) {
+      PenetrationOptions options;
+      options.method = method;
+      PenetrationSolver reference(options);
+      const std::vector<PenetrationResult> expected = reference.Solve(scene->objects);
+      ASSERT_GT(expected.size(), 50u);
+      int border = 0;
+      for (const PenetrationResult& r : expected) border += r.source == DepthSource::kBorder;
+      if (method == DepthMethod::kConsistent) {
+        ASSERT_GT(border, 20);
+      }
+      const double edge = reference.length_scale();
+      for (double factor : {0.025, 0.3, 3.0, 1e7}) {
+        options.cell_size = factor * edge;
+        PenetrationSolver solver(options);
+        ExpectSameResults(expected, solver.Solve(scene->objects),
+                          std::string(DepthMethodName(method)) + ", cell " +
+                              std::to_string(factor) + " times the average edge");
+      }
+    }
+  }
+}
+
+// A cell size that is negative, infinite or NaN is an error that says so,
+// from the constructor and from set_options, which then keeps the old
+// options.
+TEST(Determinism, BadCellSizeIsAClearError) {
+  for (double bad :
+       {-0.01, std::numeric_limits<double>::infinity(), std::numeric_limits<double>::quiet_NaN()}) {
+    SCOPED_TRACE(bad);
+    PenetrationOptions options;
+    options.cell_size = bad;
+    try {
+      PenetrationSolver solver(options);
+      ADD_FAILURE() << "no error";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("cell size"), std::string::npos) << e.what();
+    }
+    PenetrationSolver solver;
+    EXPECT_THROW(solver.set_options(options), Error);
+    EXPECT_EQ(solver.options().cell_size, 0.0);
   }
 }
 
