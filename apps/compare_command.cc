@@ -17,6 +17,7 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 
+#include "apps/cli_checks.h"
 #include "apps/commands.h"
 #include "apps/interrupt.h"
 #include "apps/metrics_json.h"
@@ -98,10 +99,10 @@ RunRow RunOne(const CompareOptions& options, const std::string& method, double d
   world_options.timestep = dt_ms * 1e-3;
   // a bad scene is reported here, at the first run, before it writes anything
   std::unique_ptr<World> world = World::Load(options.scene, world_options);
+  const long steps = StepCount(options.duration, world->timestep(), "--duration");
   const std::filesystem::path folder = out / row.folder;
   std::filesystem::create_directories(folder);
   RolloutMetrics metrics(*world);
-  const long steps = std::max(1L, std::lround(options.duration / world->timestep()));
 
   std::ofstream csv(folder / "steps.csv");
   if (!csv) throw Error(folder.string() + ": cannot write steps.csv");
@@ -319,7 +320,7 @@ void AddCompareCommand(CLI::App& app) {
   compare->add_option("--methods", options->methods, "Depth methods (default consistent,closest)")
       ->delimiter(',');
   compare->add_option("--duration", options->duration, "Simulated seconds per run (default 1)")
-      ->check(CLI::PositiveNumber);
+      ->check(PositiveFiniteNumber());
   compare->add_option("--out", options->out, "Output folder (default compare-<scene name>)");
   compare->add_option("--threads", options->threads, "Threads (default 1)")
       ->check(CLI::Range(1, 256));

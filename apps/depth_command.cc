@@ -8,6 +8,7 @@
 #include <nlohmann/json.hpp>
 #include <numbers>
 
+#include "apps/cli_checks.h"
 #include "apps/commands.h"
 #include "collision/penetration.h"
 #include "mesh/error.h"
@@ -147,11 +148,14 @@ void AddDepthCommand(CLI::App& app) {
   depth->add_option("a", options->a, "Mesh A (file or shape spec), left where it is")->required();
   depth->add_option("b", options->b, "Mesh B (file or shape spec), placed by --rotate-b, --move-b")
       ->required();
-  depth->add_option("--move-b", options->move_b, "Translation of B (metres)")->expected(3);
+  depth->add_option("--move-b", options->move_b, "Translation of B (metres)")
+      ->expected(3)
+      ->check(FiniteNumber());
   depth
       ->add_option("--rotate-b", options->rotate_b,
                    "Rotation of B about x, then y, then z (degrees), before the move")
-      ->expected(3);
+      ->expected(3)
+      ->check(FiniteNumber());
   depth->add_option("--method", options->method, "consistent (default) or closest")
       ->check(CLI::IsMember({"consistent", "closest"}));
   depth->add_option("--out", options->out, "Write both meshes with the results (.vtu or .vtk)");
@@ -161,7 +165,7 @@ void AddDepthCommand(CLI::App& app) {
   depth
       ->add_option("--cell-size", options->cell_size,
                    "Hash cell size in metres (default: average edge length)")
-      ->check(CLI::NonNegativeNumber);
+      ->check(NonNegativeFiniteNumber());
   depth->add_flag("--self-collision", options->self_collision,
                   "Also test each mesh's vertices against its own tetrahedra");
   depth->callback([options] { RunDepth(*options); });

@@ -13,6 +13,7 @@
 #include <fstream>
 #include <nlohmann/json.hpp>
 
+#include "apps/cli_checks.h"
 #include "apps/commands.h"
 #include "apps/interrupt.h"
 #include "apps/metrics_json.h"
@@ -74,10 +75,9 @@ void RunRollout(const RunOptions& options) {
   std::unique_ptr<World> world = World::Load(options.scene, world_options);
   RolloutMetrics rollout_metrics(*world);
   const double dt = world->timestep();
-  const long steps = options.steps > 0 ? options.steps
-                     : options.duration > 0.0
-                         ? static_cast<long>(std::llround(options.duration / dt))
-                         : static_cast<long>(std::llround(1.0 / dt));
+  const long steps = options.steps > 0        ? options.steps
+                     : options.duration > 0.0 ? StepCount(options.duration, dt, "--duration")
+                                              : StepCount(1.0, dt, "the default duration");
   std::filesystem::path out(options.out);
   std::error_code error;
   std::filesystem::create_directories(out, error);
@@ -96,7 +96,12 @@ void RunRollout(const RunOptions& options) {
                "px,py,pz,direction_change_max_deg,neighbour_angle_mean_deg,fallback_points,"
                "unresolved_points,wall_ms\n";
   bodies_csv << "frame,time,body,x,y,z,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz\n";
-  const long frame_every = std::max(1L, static_cast<long>(std::llround(1.0 / (options.fps * dt))));
+  // (a rate so low that not even one frame falls in the run: one frame, the
+  // first; the count of steps between frames would not fit in a long)
+  const double steps_per_frame = std::round(1.0 / (options.fps * dt));
+  const long frame_every = steps_per_frame < static_cast<double>(steps)
+                               ? std::max(1L, static_cast<long>(steps_per_frame))
+                               : steps;
   std::vector<std::pair<double, std::string>> series;
 
   CatchInterrupt();
@@ -260,7 +265,7 @@ void AddRunCommand(CLI::App& app) {
   run->add_option("scene", options->scene, "Scene file (MJCF with a <deformable> element)")
       ->required();
   auto* duration = run->add_option("--duration", options->duration, "Simulated seconds (default 1)")
-                       ->check(CLI::PositiveNumber);
+                       ->check(PositiveFiniteNumber());
   run->add_option("--steps", options->steps, "Number of steps")
       ->check(CLI::PositiveNumber)
       ->excludes(duration);
@@ -268,7 +273,7 @@ void AddRunCommand(CLI::App& app) {
       ->check(CLI::IsMember({"consistent", "closest"}));
   run->add_option("--out", options->out, "Output folder (default out)");
   run->add_option("--fps", options->fps, "Frames per second for bodies.csv and VTK (default 30)")
-      ->check(CLI::PositiveNumber);
+      ->check(PositiveFiniteNumber());
   run->add_flag("--vtk", options->vtk,
                 "Write the deformable meshes per frame (vtk/*.vtu, series.pvd)");
   run->add_flag("--render", options->render, "Render frames offscreen (frames/NNNNN.png)");
@@ -280,7 +285,7 @@ void AddRunCommand(CLI::App& app) {
   run->add_option("--camera", options->camera, "A camera of the scene (default: a free camera)");
   run->add_option("--threads", options->threads, "Threads (default 1)")->check(CLI::Range(1, 256));
   run->add_option("--timestep", options->timestep, "Override the scene's timestep (s)")
-      ->check(CLI::PositiveNumber);
+      ->check(PositiveFiniteNumber());
   run->callback([options] { RunRollout(*options); });
 }
 

@@ -296,6 +296,38 @@ TEST(CompareCommand, WritesOneRowPerMethodAndTimestep) {
   EXPECT_NE(text.find("'fast' is not a positive time step"), std::string::npos) << text;
 }
 
+// Numbers on the command line that are not finite (CLI11's own range checks
+// let NaN through: `--duration nan` ran the default second) or that make
+// more steps than can be counted are clear errors, before anything runs.
+TEST(Commands, BadNumbersAreClearErrors) {
+  TempDir dir;
+  const std::string tetcosim = std::string(TETCOSIM_BINARY) + " ";
+  const std::string scene = std::string(TETCOSIM_SOURCE_DIR) + "/models/scenes/cube_on_box.xml";
+  const std::string out = " --out " + (dir.path() / "out").string();
+  const std::string box = " box:size=0.1:res=2 ";
+  const std::pair<std::string, std::string> cases[] = {
+      {"run " + scene + " --duration nan" + out, "--duration: 'nan' must be a finite number > 0"},
+      {"run " + scene + " --fps inf" + out, "--fps: 'inf' must be a finite number > 0"},
+      {"run " + scene + " --timestep -0.001" + out, "--timestep: '-0.001' must be a finite"},
+      {"run " + scene + " --duration 1e30" + out, "--duration 1e+30 s is 5e+32 steps"},
+      {"compare " + scene + " --duration 1e300" + out, "--duration 1e+300 s is"},
+      {"depth" + box + box + "--move-b 0 nan 0", "--move-b: 'nan' must be a finite number"},
+      {"depth" + box + box + "--rotate-b 1e999 0 0", "--rotate-b: '1e999' must be a finite"},
+      {"depth" + box + box + "--cell-size nan", "--cell-size: 'nan' must be a finite number >= 0"},
+  };
+  for (const auto& [arguments, message] : cases) {
+    const std::string command = tetcosim + arguments + " 2>&1";
+    FILE* pipe = popen(command.c_str(), "r");
+    std::string text;
+    char buffer[512];
+    while (fgets(buffer, sizeof(buffer), pipe)) text += buffer;
+    EXPECT_NE(pclose(pipe), 0) << command;
+    EXPECT_NE(text.find(message), std::string::npos) << command << "\n" << text;
+  }
+  // (nothing ran: no rollout wrote its outputs)
+  EXPECT_FALSE(std::filesystem::exists(dir.path() / "out" / "steps.csv"));
+}
+
 }  // namespace
 }  // namespace tetcosim
 

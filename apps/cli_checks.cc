@@ -1,0 +1,53 @@
+#include "apps/cli_checks.h"
+
+#include <cmath>
+#include <cstdio>
+
+#include "mesh/error.h"
+
+namespace tetcosim::app {
+namespace {
+
+// A validator that parses the value as a double and passes it to `ok`;
+// `wanted` completes "must be ..." in the message.
+CLI::Validator NumberCheck(bool (*ok)(double), const std::string& wanted, const std::string& name) {
+  return CLI::Validator(
+      [ok, wanted](std::string& text) -> std::string {
+        double value = 0.0;
+        if (!CLI::detail::lexical_cast(text, value)) return "'" + text + "' is not a number";
+        if (!ok(value)) return "'" + text + "' must be " + wanted;
+        return {};
+      },
+      "FLOAT", name);
+}
+
+}  // namespace
+
+CLI::Validator FiniteNumber() {
+  return NumberCheck([](double x) { return std::isfinite(x); }, "a finite number", "FINITE");
+}
+
+CLI::Validator PositiveFiniteNumber() {
+  return NumberCheck([](double x) { return std::isfinite(x) && x > 0.0; }, "a finite number > 0",
+                     "POSITIVE");
+}
+
+CLI::Validator NonNegativeFiniteNumber() {
+  return NumberCheck([](double x) { return std::isfinite(x) && x >= 0.0; }, "a finite number >= 0",
+                     "NONNEGATIVE");
+}
+
+long StepCount(double seconds, double dt, const std::string& option) {
+  constexpr double kMaxSteps = 9007199254740992.0;  // 2^53
+  const double count = std::round(seconds / dt);
+  if (!(count <= kMaxSteps)) {
+    char message[256];
+    std::snprintf(message, sizeof(message),
+                  "%s %g s is %g steps of %g s, more than 2^53 (%.3g); give a shorter time",
+                  option.c_str(), seconds, count, dt, kMaxSteps);
+    throw Error(message);
+  }
+  return std::max(1L, static_cast<long>(count));
+}
+
+}  // namespace tetcosim::app
