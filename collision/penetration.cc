@@ -9,7 +9,6 @@
 #include <algorithm>
 #include <atomic>
 #include <bit>
-#include <cassert>
 #include <chrono>
 #include <cmath>
 #include <cstdint>
@@ -367,8 +366,16 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
   long edge_count = 0;
   for (int o = 0; o < num_objects; ++o) {
     const CollisionObject& object = objects[o];
-    assert(object.mesh != nullptr && object.positions != nullptr);
-    assert(object.positions->rows() == object.mesh->num_vertices());
+    if (object.mesh == nullptr || object.positions == nullptr ||
+        object.positions->rows() != object.mesh->num_vertices()) [[unlikely]] {
+      throw Error("penetration solver: object " + std::to_string(o) +
+                  (object.mesh == nullptr || object.positions == nullptr
+                       ? " has no mesh or no positions"
+                       : " has " + std::to_string(object.positions->rows()) +
+                             " positions for a mesh of " +
+                             std::to_string(object.mesh->num_vertices()) + " vertices") +
+                  "; give every object its mesh and one position per vertex");
+    }
     vertex_offset_[o + 1] = vertex_offset_[o] + object.mesh->num_vertices();
     positions_[o] = object.positions;
     edge_sum +=

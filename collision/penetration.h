@@ -127,7 +127,8 @@ class PenetrationSolver {
 
   // Finds every colliding point and its depth and direction. Results are
   // ordered by (object, vertex, penetrated). The returned reference stays
-  // valid until the next Solve().
+  // valid until the next Solve(). Throws Error for an object without a mesh
+  // or positions, or with a number of positions other than its vertices'.
   const std::vector<PenetrationResult>& Solve(std::span<const CollisionObject> objects);
 
   const std::vector<PenetrationResult>& results() const { return results_; }

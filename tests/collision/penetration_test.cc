@@ -892,5 +892,29 @@ TEST(Determinism, BadCellSizeIsAClearError) {
   }
 }
 
+// An object whose positions do not match its mesh (or that has neither) is
+// an error that names it, not a read past the end.
+TEST(Determinism, MismatchedObjectIsAClearError) {
+  TestScene scene;
+  scene.Add("box:size=0.05:res=2", {0, 0, 0});
+  scene.Add("box:size=0.05:res=2", {0.05, 0, 0});
+  const Positions fewer = scene.positions[1]->topRows(5);
+  std::vector<CollisionObject> objects = scene.objects;
+  objects[1].positions = &fewer;
+  PenetrationSolver solver;
+  try {
+    solver.Solve(objects);
+    ADD_FAILURE() << "no error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("object 1 has 5 positions for a mesh of 27 vertices"),
+              std::string::npos)
+        << e.what();
+  }
+  objects[1].positions = nullptr;
+  EXPECT_THROW(solver.Solve(objects), Error);
+  // and the solver still works after
+  EXPECT_GT(solver.Solve(scene.objects).size(), 0u);
+}
+
 }  // namespace
 }  // namespace tetcosim
