@@ -36,6 +36,10 @@ struct WorldOptions {
   std::optional<DepthMethod> method;  // overrides the scene's <contact method>
   int threads = 1;
   std::optional<double> timestep;  // overrides the MJCF's <option timestep>
+  // The most memory (bytes) the scene's meshes may take, estimated from
+  // their tetrahedra before they are built (a load that would need more is
+  // an Error naming the element); unset: what the machine has available.
+  std::optional<double> memory_limit;
 };
 
 // A point of one object inside another, measured exactly on the current

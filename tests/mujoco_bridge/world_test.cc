@@ -228,6 +228,30 @@ TEST(WorldStep, UnstableRigidStateIsAStatus) {
       << world->metrics().message;
 }
 
+// A scene whose meshes would need more memory than there is is an error at
+// the element that goes over, before any mesh is built (else the kernel
+// kills the process while it builds them). cube_on_box's deformable has 384
+// tetrahedra (about 0.6 MB) and its rigid proxy 384 (about 0.23 MB).
+TEST(WorldLoad, MemoryBeyondTheLimitIsAClearError) {
+  const std::string path = std::string(TETCOSIM_SOURCE_DIR) + "/models/scenes/cube_on_box.xml";
+  for (const auto& [limit, message] :
+       {std::pair{1e5, "cube_on_box.xml:17: <tetbody name=\"cube\">: 384 tetrahedra"},
+        std::pair{7e5, "cube_on_box.xml:16: <rigidtet>: 384 tetrahedra"}}) {
+    WorldOptions options;
+    options.memory_limit = limit;
+    try {
+      World::Load(path, options);
+      ADD_FAILURE() << "no error at " << limit;
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(message), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("the memory limit is"), std::string::npos) << e.what();
+    }
+  }
+  WorldOptions options;
+  options.memory_limit = 1e6;
+  EXPECT_NO_THROW(World::Load(path, options));
+}
+
 TEST(RunCommand, OutputsParse) {
   TempDir dir;
   std::string command = std::string(TETCOSIM_BINARY) + " run " + TETCOSIM_SOURCE_DIR +
