@@ -5,6 +5,7 @@
 #include <Eigen/Geometry>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <nlohmann/json.hpp>
 #include <numbers>
 
@@ -158,7 +159,14 @@ void AddDepthCommand(CLI::App& app) {
       ->check(FiniteNumber());
   depth->add_option("--method", options->method, "consistent (default) or closest")
       ->check(CLI::IsMember({"consistent", "closest"}));
-  depth->add_option("--out", options->out, "Write both meshes with the results (.vtu or .vtk)");
+  depth->add_option("--out", options->out, "Write both meshes with the results (.vtu or .vtk)")
+      ->check(CLI::Validator(
+          [](std::string& path) -> std::string {
+            const std::string extension = std::filesystem::path(path).extension().string();
+            if (extension == ".vtu" || extension == ".vtk") return {};
+            return "'" + path + "' must end in .vtu (XML) or .vtk (legacy)";
+          },
+          "FILE.vtu|FILE.vtk", "VTK file"));
   depth->add_flag("--json", options->json, "Print every colliding point and a summary as JSON");
   depth->add_option("--threads", options->threads, "Threads (results do not depend on it)")
       ->check(CLI::Range(1, 256));

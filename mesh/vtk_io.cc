@@ -125,17 +125,25 @@ std::string LegacyVtk(const Positions& positions, const Tets& tets, const VtkDat
 }  // namespace
 
 void WriteFileAtomically(const std::string& path, std::string_view content) {
-  std::string temporary = path + ".tmp";
+  std::error_code error;
+  if (path.empty() || path.back() == '/' || std::filesystem::is_directory(path, error)) {
+    ThrowAt(path, 0, "is a folder; give the name of a file to write");
+  }
+  const std::string temporary = path + ".tmp";
+  // (a failed write leaves neither the temporary file nor a partial one)
+  auto fail = [&](const std::string& message) {
+    std::filesystem::remove(temporary, error);
+    ThrowAt(path, 0, message);
+  };
   {
     std::ofstream out(temporary, std::ios::binary | std::ios::trunc);
     if (!out) ThrowAt(path, 0, "cannot write: check that the folder exists and is writable");
     out.write(content.data(), static_cast<std::streamsize>(content.size()));
     out.close();
-    if (!out) ThrowAt(path, 0, "write failed (disk full?)");
+    if (!out) fail("write failed (disk full?)");
   }
-  std::error_code error;
   std::filesystem::rename(temporary, path, error);
-  if (error) ThrowAt(path, 0, "cannot rename the temporary file: " + error.message());
+  if (error) fail("cannot rename the temporary file: " + error.message());
 }
 
 void WriteVtk(const std::string& path, const Positions& positions, const Tets& tets,

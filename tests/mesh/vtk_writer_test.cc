@@ -69,6 +69,19 @@ TEST(VtkWriter, WrongArraySizeAndUnwritablePathAreErrors) {
   data.point_data.push_back({"bad", 1, {1.0, 2.0}});
   EXPECT_THROW(WriteVtk(TempPath("bad.vtu"), mesh.positions(), mesh.tets(), data), Error);
   EXPECT_THROW(WriteVtk("/nonexistent-dir/x.vtu", mesh.positions(), mesh.tets()), Error);
+  // a folder is an error that says so, and leaves no temporary file beside it
+  const std::string folder = TempPath("folder");
+  std::filesystem::create_directory(folder);
+  for (const std::string& path : {folder, folder + "/"}) {
+    try {
+      WriteVtk(path, mesh.positions(), mesh.tets());
+      ADD_FAILURE() << "no error for " << path;
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("is a folder"), std::string::npos) << e.what();
+    }
+    EXPECT_FALSE(std::filesystem::exists(path + ".tmp"));
+  }
+  std::filesystem::remove(folder);
 }
 
 }  // namespace

@@ -338,6 +338,7 @@ TEST(Commands, BadNumbersAreClearErrors) {
       {"depth" + box + box + "--move-b 0 nan 0", "--move-b: 'nan' must be a finite number"},
       {"depth" + box + box + "--rotate-b 1e999 0 0", "--rotate-b: '1e999' must be a finite"},
       {"depth" + box + box + "--cell-size nan", "--cell-size: 'nan' must be a finite number >= 0"},
+      {"depth" + box + box + "--out x.txt", "--out: 'x.txt' must end in .vtu (XML) or .vtk"},
   };
   for (const auto& [arguments, message] : cases) {
     const std::string command = tetcosim + arguments + " 2>&1";
