@@ -9,6 +9,7 @@
 #include <set>
 
 #include "mesh/error.h"
+#include "mesh/text_reader.h"
 #include "tests/mujoco_bridge/temp_dir.h"
 
 namespace tetcosim {
@@ -250,6 +251,36 @@ TEST(WorldLoad, MemoryBeyondTheLimitIsAClearError) {
   WorldOptions options;
   options.memory_limit = 1e6;
   EXPECT_NO_THROW(World::Load(path, options));
+}
+
+// A deformable placed so far out that its vertices round together (at
+// 1e30 m a 4 cm cube is one point, which ran with kinetic energy from
+// nowhere) is an error; at 1e4 m the same scene loads.
+TEST(WorldLoad, BodyTooFarForDoublePrecisionIsAClearError) {
+  TempDir dir;
+  const std::string scene =
+      ReadFileContents(std::string(TETCOSIM_SOURCE_DIR) + "/models/scenes/cube_on_box.xml");
+  const std::string at = "pos=\"0.01 0 0.2\"";
+  ASSERT_NE(scene.find(at), std::string::npos);
+  for (const std::string x : {"1e30", "1e4"}) {
+    std::string moved = scene;
+    moved.replace(moved.find(at), at.size(), "pos=\"" + x + " 0 0.2\"");
+    const std::string path = (dir.path() / ("far_" + x + ".xml")).string();
+    std::ofstream(path) << moved;
+    if (x == "1e4") {
+      EXPECT_NO_THROW(World::Load(path));
+      continue;
+    }
+    try {
+      World::Load(path);
+      ADD_FAILURE() << "no error at " << x;
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(":17: <tetbody name=\"cube\">: placed 1e+30 m from "
+                                           "the origin, rounding changes"),
+                std::string::npos)
+          << e.what();
+    }
+  }
 }
 
 TEST(RunCommand, OutputsParse) {
