@@ -15,6 +15,8 @@
 namespace tetcosim {
 namespace {
 
+constexpr double kSpeedOfLight = 299792458.0;  // m/s: the bound on an initial velocity
+
 using tinyxml2::XMLElement;
 
 class SceneParser {
@@ -254,6 +256,15 @@ class SceneParser {
     if (!damping.empty()) spec.material.damping_mass = damping[0];
     if (damping.size() > 1) spec.material.damping_stiffness = damping[1];
     std::vector<double> vel = Numbers(e, "vel", 3, 3);
+    for (double v : vel) {
+      // (at 1e200 m/s the kinetic energy overflowed to inf, and the run
+      // reported "ok")
+      if (std::abs(v) > kSpeedOfLight) {
+        std::ostringstream range;
+        range << "vel = " << v << " m/s is faster than light (" << kSpeedOfLight << " m/s)";
+        Fail(e, range.str());
+      }
+    }
     if (!vel.empty()) spec.velocity = Eigen::Vector3d(vel[0], vel[1], vel[2]);
     std::vector<double> rgba = Numbers(e, "rgba", 4, 4);
     if (!rgba.empty()) spec.rgba = Eigen::Vector4d(rgba[0], rgba[1], rgba[2], rgba[3]);

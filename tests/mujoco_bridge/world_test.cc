@@ -64,6 +64,8 @@ TEST(SceneLoading, BadScenesNameTheLine) {
        "scene.xml:6: <tetbody name=\"a\">: tetbody 'a': unknown shape 'blob'"},
       {"<tetbody name=\"a\" shape=\"sphere\" size=\"0.1\" pos=\"1 2\"/>\n",
        "pos takes 3 numbers, got 2"},
+      {"<tetbody name=\"a\" shape=\"sphere\" size=\"0.1\" vel=\"0 1e200 0\"/>\n",
+       "scene.xml:6: <tetbody>: vel = 1e+200 m/s is faster than light"},
       {"<rigidtet body=\"nobody\" geom=\"g\"/>\n",
        "scene.xml:6: <rigidtet>: no MuJoCo body named 'nobody'"},
       {"<contact method=\"nearest\"/>\n",
