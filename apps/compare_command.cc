@@ -273,10 +273,17 @@ void WritePlots(const std::vector<RunRow>& rows, const std::filesystem::path& ou
 
 void RunCompare(CompareOptions options) {
   std::vector<double> dts;
-  for (const std::string& text : options.dt) dts.push_back(ParseMilliseconds(text));
+  for (const std::string& text : options.dt) {
+    dts.push_back(ParseMilliseconds(text));
+    // (a repeated step would run twice into the same folder and table row)
+    if (std::count(dts.begin(), dts.end(), dts.back()) > 1)
+      throw Error("--dt: '" + text + "' repeats a time step given before it");
+  }
   for (const std::string& method : options.methods) {
     if (method != "consistent" && method != "closest")
       throw Error("--methods: '" + method + "' is not consistent or closest");
+    if (std::count(options.methods.begin(), options.methods.end(), method) > 1)
+      throw Error("--methods: '" + method + "' is given twice");
   }
   if (options.out.empty())
     options.out = "compare-" + std::filesystem::path(options.scene).stem().string();
