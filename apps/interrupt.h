@@ -1,7 +1,9 @@
 #pragma once
 
-// Ctrl-C during a rollout: the commands stop at the next step and keep what
-// they wrote valid, instead of dying half-way through a file.
+// Ctrl-C (SIGINT), or a polite kill (SIGTERM: `kill`, `timeout`, a CI job
+// cancelled; SIGHUP: the terminal closed) during a rollout: the commands stop
+// at the next step and keep what they wrote valid, instead of dying half-way
+// through a file.
 
 #include <atomic>
 #include <csignal>
@@ -10,9 +12,9 @@ namespace tetcosim::app {
 
 inline std::atomic<bool> interrupted{false};
 
-// SIGINT sets `interrupted` from now on.
+// SIGINT, SIGTERM and SIGHUP set `interrupted` from now on.
 inline void CatchInterrupt() {
-  std::signal(SIGINT, [](int) { interrupted = true; });
+  for (int signal : {SIGINT, SIGTERM, SIGHUP}) std::signal(signal, [](int) { interrupted = true; });
 }
 
 }  // namespace tetcosim::app

@@ -1,7 +1,7 @@
 // tetcosim run SCENE.xml: a headless rollout that writes summary.json,
 // steps.csv, bodies.csv and (with --vtk) vtk/*.vtu with a series.pvd. Ctrl-C
-// stops cleanly with everything written so far valid; a non-finite state
-// stops the run with status "diverged".
+// (or SIGTERM, SIGHUP) stops cleanly with everything written so far valid; a
+// non-finite state stops the run with status "diverged".
 
 #include <unistd.h>
 

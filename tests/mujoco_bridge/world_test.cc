@@ -323,6 +323,40 @@ TEST(RunCommand, OutputsParse) {
   }
 }
 
+// A rollout stopped by SIGTERM (kill, timeout, a cancelled CI job) stops at
+// the next step with its files complete: summary.json says "interrupted",
+// every row of steps.csv is whole.
+TEST(RunCommand, TerminatedRunKeepsValidOutputs) {
+  TempDir dir;
+  const std::string out = (dir.path() / "out").string();
+  const std::string run = std::string(TETCOSIM_BINARY) + " run " + TETCOSIM_SOURCE_DIR +
+                          "/models/scenes/cube_on_box.xml --duration 1000 --out " + out;
+  // start it, wait (at most 60 s) until it has written a few steps, stop it
+  const std::string command = "sh -c '" + run + " > /dev/null 2>&1 & pid=$!; i=0; " +
+                              "while [ $(cat " + out + "/steps.csv 2>/dev/null | wc -l) -lt 20 ] " +
+                              "&& [ $i -lt 1200 ]; do sleep 0.05; i=$((i+1)); done; " +
+                              "kill -TERM $pid; wait $pid; exit $?'";
+  const int status = std::system(command.c_str());
+  ASSERT_TRUE(WIFEXITED(status)) << "killed by the signal instead of stopping";
+  EXPECT_EQ(WEXITSTATUS(status), 1);  // (an interrupted run is not a success)
+  std::ifstream summary_file(out + "/summary.json");
+  const nlohmann::json summary = nlohmann::json::parse(summary_file);
+  EXPECT_EQ(summary["status"], "interrupted");
+  const long steps = summary["steps"].get<long>();
+  EXPECT_GE(steps, 19);
+  EXPECT_LT(steps, 500000);
+  std::ifstream steps_csv(out + "/steps.csv");
+  std::string header, line;
+  std::getline(steps_csv, header);
+  const auto columns = std::count(header.begin(), header.end(), ',');
+  long rows = 0;
+  while (std::getline(steps_csv, line)) {
+    EXPECT_EQ(std::count(line.begin(), line.end(), ','), columns) << "row " << rows;
+    ++rows;
+  }
+  EXPECT_EQ(rows, steps);
+}
+
 TEST(CompareCommand, WritesOneRowPerMethodAndTimestep) {
   TempDir dir;
   const std::string out = (dir.path() / "compare").string();
