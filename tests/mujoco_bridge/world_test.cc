@@ -2,11 +2,16 @@
 
 #include <gtest/gtest.h>
 #include <mujoco/mujoco.h>
+#include <sys/wait.h>
 
+#include <algorithm>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <set>
+#include <string>
+#include <utility>
 
 #include "mesh/error.h"
 #include "mesh/text_reader.h"
@@ -16,6 +21,15 @@ namespace tetcosim {
 namespace {
 
 const std::string kData = TETCOSIM_TEST_DATA_DIR;
+
+// Runs a shell command: its exit status (as pclose gives it) and its output.
+std::pair<int, std::string> RunShell(const std::string& command) {
+  FILE* pipe = popen(command.c_str(), "r");
+  std::string text;
+  char buffer[512];
+  while (fgets(buffer, sizeof(buffer), pipe)) text += buffer;
+  return {pclose(pipe), text};
+}
 
 std::string ErrorOf(const std::string& path) {
   try {
@@ -379,11 +393,8 @@ TEST(CompareCommand, WritesOneRowPerMethodAndTimestep) {
   // a bad time step list is a clear error
   std::string bad = std::string(TETCOSIM_BINARY) + " compare " + TETCOSIM_SOURCE_DIR +
                     "/models/paper/cubes.xml --dt 1,fast --out " + out + " 2>&1";
-  FILE* pipe = popen(bad.c_str(), "r");
-  std::string text;
-  char buffer[512];
-  while (fgets(buffer, sizeof(buffer), pipe)) text += buffer;
-  EXPECT_NE(pclose(pipe), 0);
+  const auto [status, text] = RunShell(bad);
+  EXPECT_NE(status, 0);
   EXPECT_NE(text.find("'fast' is not a positive time step"), std::string::npos) << text;
 }
 
@@ -412,11 +423,8 @@ TEST(Commands, BadNumbersAreClearErrors) {
   };
   for (const auto& [arguments, message] : cases) {
     const std::string command = tetcosim + arguments + " 2>&1";
-    FILE* pipe = popen(command.c_str(), "r");
-    std::string text;
-    char buffer[512];
-    while (fgets(buffer, sizeof(buffer), pipe)) text += buffer;
-    EXPECT_NE(pclose(pipe), 0) << command;
+    const auto [status, text] = RunShell(command);
+    EXPECT_NE(status, 0) << command;
     EXPECT_NE(text.find(message), std::string::npos) << command << "\n" << text;
   }
   // (nothing ran: no rollout wrote its outputs)
