@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 
 #include "mesh/error.h"
 
@@ -13,8 +14,12 @@ namespace {
 CLI::Validator NumberCheck(bool (*ok)(double), const std::string& wanted, const std::string& name) {
   return CLI::Validator(
       [ok, wanted](std::string& text) -> std::string {
-        double value = 0.0;
-        if (!CLI::detail::lexical_cast(text, value)) return "'" + text + "' is not a number";
+        // (strtod: beyond the range of double, such as 1e400, is infinite)
+        char* end = nullptr;
+        const double value = std::strtod(text.c_str(), &end);
+        if (text.empty() || end != text.c_str() + text.size()) {
+          return "'" + text + "' is not a number";
+        }
         if (!ok(value)) return "'" + text + "' must be " + wanted;
         return {};
       },
