@@ -5,8 +5,10 @@
 // and 1 to 10 copies of the two-cube scene (cost against the number of
 // colliding points); a coarse box's corner in a fine ball (edges hundreds
 // of cells long), a ball enclosed in a block (the closest-feature
-// fallback), and fine cubes on a coarse slab (triangles too large to hash)
-// and on a less coarse one (tetrahedra too large to search cell by cell).
+// fallback), fine cubes on a coarse slab (triangles too large to hash)
+// and on a less coarse one (tetrahedra too large to search cell by cell),
+// and one small ball on rigid slabs of 7,500 to 480,000 tetrahedra (what a
+// large body costs beyond its contacts).
 //
 // Counters: colliding points, intersection edges (stage 2), microseconds
 // per colliding point (from the solver's own wall-clock timing of Solve),
@@ -245,6 +247,27 @@ BENCHMARK(BM_MediumSlab)
     ->ArgsProduct({{100}, {0, 1}, {1, 2}})
     ->ArgNames({"cubes", "closest", "threads"})
     ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+
+// one small ball (2 cm, 320 tetrahedra) pressed 5 mm into a rigid slab (2 m
+// x 2 m x 10 cm) of cells x cells x 2 cells, 6 tets each (25: 7,500 tets; 200:
+// 480,000): the contact stays the same size while the slab grows, so this
+// is what a large body costs a solve beyond its contacts (its vertices,
+// tetrahedra and faces are each passed over once a solve)
+void BM_BallOnSlab(benchmark::State& state) {
+  Scene scene;
+  const int cells = static_cast<int>(state.range(0));
+  scene.Add(scene.Mesh("box:size=1,1,0.05:res=" + std::to_string(cells) + "," +
+                       std::to_string(cells) + ",2"),
+            Eigen::Vector3d::Zero());
+  scene.objects.back().rigid = true;
+  scene.Add(scene.Mesh("sphere:size=0.02:res=2"), Eigen::Vector3d(0.0, 0.0, 0.065));
+  Run(state, scene);
+}
+BENCHMARK(BM_BallOnSlab)
+    ->ArgsProduct({{25, 50, 100, 200}, {0}, {1}})
+    ->ArgNames({"cells", "closest", "threads"})
+    ->Unit(benchmark::kMicrosecond)
     ->UseRealTime();
 
 }  // namespace
