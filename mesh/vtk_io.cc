@@ -126,7 +126,8 @@ std::string LegacyVtk(const Positions& positions, const Tets& tets, const VtkDat
 
 void WriteFileAtomically(const std::string& path, std::string_view content) {
   std::error_code error;
-  if (path.empty() || path.back() == '/' || std::filesystem::is_directory(path, error)) {
+  if (path.empty()) throw Error("no file name to write to");
+  if (path.back() == '/' || std::filesystem::is_directory(path, error)) {
     ThrowAt(path, 0, "is a folder; give the name of a file to write");
   }
   const std::string temporary = path + ".tmp";
