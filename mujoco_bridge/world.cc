@@ -39,10 +39,6 @@ double AvailableMemory() {
   return 0.0;
 }
 
-// Adds a mesh of num_tets to the scene's estimated memory (`needed`,
-// bytes) and throws, at the scene's element, if that is more than the
-// machine has available: the alternative is the kernel killing the process
-// while it builds the meshes, with no word of why.
 // Placed far from the origin, a body's vertices round to coarser steps than
 // its elements resolve (at 1e30 m, all of a 4 cm cube to one point, which then
 // "ran" with 38 J of kinetic energy from nowhere): an error when placing it
@@ -75,7 +71,11 @@ void CheckPlacementPrecision(const DeformableBody& body, const std::string& scen
   ThrowAt(scene_path, line, message);
 }
 
-// (`limited`: the limit is WorldOptions::memory_limit, not the machine's)
+// Adds a mesh of num_tets to the scene's estimated memory (`needed`,
+// bytes) and throws, at the scene's element, if that is more than is
+// available (`limited`: WorldOptions::memory_limit, else the machine's):
+// the alternative is the kernel killing the process while it builds the
+// meshes, with no word of why.
 void CheckMemory(long num_tets, double bytes_per_tet, double& needed, double available,
                  bool limited, const std::string& scene_path, int line,
                  const std::string& element) {
