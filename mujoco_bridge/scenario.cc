@@ -1,8 +1,30 @@
 #include "mujoco_bridge/scenario.h"
 
 #include <cmath>
+#include <cstdio>
+
+#include "mesh/error.h"
 
 namespace tetcosim {
+namespace {
+
+// The whole steps of dt in `duration` (rounded): an Error for a duration
+// that is NaN, infinite, negative or more than 2^53 steps (rounding such a
+// count to a long ran no step at all, and Run reported success).
+long StepsIn(double duration, double dt, const char* caller) {
+  const double steps = std::round(duration / dt);
+  if (!(duration >= 0.0) || !(steps <= 9007199254740992.0)) {
+    char message[160];
+    std::snprintf(message, sizeof(message),
+                  "Scenario::%s: a duration of %g s at steps of %g s; give a finite duration >= 0 "
+                  "of at most 2^53 steps",
+                  caller, duration, dt);
+    throw Error(message);
+  }
+  return static_cast<long>(steps);
+}
+
+}  // namespace
 
 Scenario::Scenario(const std::string& scene_path, const WorldOptions& options,
                    const RolloutMetricsOptions& metrics_options)
@@ -20,7 +42,8 @@ bool Scenario::Advance() {
 }
 
 bool Scenario::Run(double duration, const std::function<void(World&)>& each_step) {
-  const long steps = std::lround(duration / world_->timestep());
+  const long steps = StepsIn(duration, world_->timestep(), "Run");
+  message_.clear();
   for (long s = 0; s < steps; ++s) {
     if (!Advance()) return false;
     if (each_step) each_step(*world_);
@@ -29,7 +52,8 @@ bool Scenario::Run(double duration, const std::function<void(World&)>& each_step
 }
 
 bool Scenario::RunUntil(const std::function<bool(const World&)>& done, double max_duration) {
-  const long steps = std::lround(max_duration / world_->timestep());
+  const long steps = StepsIn(max_duration, world_->timestep(), "RunUntil");
+  message_.clear();
   for (long s = 0; s < steps; ++s) {
     if (!Advance()) return false;
     if (done(*world_)) return true;

@@ -26,8 +26,10 @@ class Scenario {
   explicit Scenario(const std::string& scene_path, const WorldOptions& options = {},
                     const RolloutMetricsOptions& metrics_options = {});
 
-  // Simulates `duration` seconds (rounded to whole steps). `each_step`, when
-  // given, is called after every step (e.g. to record a trajectory).
+  // Simulates `duration` seconds (rounded to whole steps; throws Error for a
+  // duration that is not finite, negative, or more than 2^53 steps).
+  // `each_step`, when given, is called after every step (e.g. to record a
+  // trajectory).
   bool Run(double duration, const std::function<void(World&)>& each_step = {});
   // Steps until `done(world)` holds (checked after each step) or `max_duration`
   // has passed; true if `done` held.
@@ -41,7 +43,7 @@ class Scenario {
   const RolloutMetrics& metrics() const { return *metrics_; }
   RolloutSummary Summarize() { return metrics_->Summarize(*world_); }
   bool ok() const { return message_.empty(); }
-  // Why the last Run() stopped early (empty if it did not).
+  // Why the last Run() or RunUntil() stopped early (empty if it did not).
   const std::string& message() const { return message_; }
 
  private:

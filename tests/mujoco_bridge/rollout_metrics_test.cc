@@ -1,9 +1,12 @@
 #include "mujoco_bridge/rollout_metrics.h"
 
 #include <gtest/gtest.h>
+#include <mujoco/mujoco.h>
 
 #include <cmath>
+#include <limits>
 
+#include "mesh/error.h"
 #include "mujoco_bridge/scenario.h"
 #include "tests/mujoco_bridge/temp_dir.h"
 
@@ -160,6 +163,25 @@ TEST(RolloutMetrics, DirectionFiguresMatchBruteForce) {
     EXPECT_GT(steps_with_edges, 3) << "the test saw contacts";
     EXPECT_NEAR(scenario.Summarize().max_direction_change, max_change_seen, 1e-9);
   }
+}
+
+// Scenario::Run with a duration that is not a count of steps is an error
+// (NaN and 1e30 s rounded to no step at all, and Run said it succeeded);
+// message() tells of the last run only: after a run that diverged, one that
+// does not leaves it empty.
+TEST(Scenario, BadDurationsAreErrorsAndMessagesAreOfTheLastRun) {
+  Scenario scenario(std::string(TETCOSIM_SOURCE_DIR) + "/models/scenes/cube_on_box.xml");
+  for (double bad : {std::nan(""), 1e30, -1.0, std::numeric_limits<double>::infinity()}) {
+    EXPECT_THROW(scenario.Run(bad), Error) << bad;
+    EXPECT_THROW(scenario.RunUntil([](const World&) { return false; }, bad), Error) << bad;
+  }
+  scenario.SetController([](World& w) { w.mj_data()->qvel[0] = std::nan(""); });
+  EXPECT_FALSE(scenario.Run(0.01));
+  EXPECT_FALSE(scenario.ok());
+  EXPECT_NE(scenario.message().find("non-finite"), std::string::npos) << scenario.message();
+  scenario.SetController({});
+  EXPECT_TRUE(scenario.Run(0.01));
+  EXPECT_TRUE(scenario.ok()) << scenario.message();
 }
 
 }  // namespace
