@@ -3,6 +3,7 @@
 #include <mujoco/mujoco.h>
 
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -317,6 +318,15 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
   }
   mjModel* m = world->model_;
   if (options.timestep) m->opt.timestep = *options.timestep;
+  // (MuJoCo takes any number: at -0.001 s a rollout "ran" backwards in time
+  // and reported ok)
+  if (!(m->opt.timestep > 0.0) || !std::isfinite(m->opt.timestep)) {
+    char message[128];
+    std::snprintf(message, sizeof(message),
+                  "the time step is %g s (<option timestep>); give a finite time > 0",
+                  m->opt.timestep);
+    ThrowAt(scene_path, 0, message);
+  }
   world->data_ = mj_makeData(m);
   mjData* d = world->data_;
   if (m->nkey > 0) mj_resetDataKeyframe(m, d, 0);  // the first keyframe is the initial state

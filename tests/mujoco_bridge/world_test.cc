@@ -99,6 +99,10 @@ TEST(SceneLoading, BadScenesNameTheLine) {
                         "<mujoco><worldbody>\n<geom type=\"nonsense\"/></worldbody></mujoco>"))
           .find("MuJoCo rejected the scene"),
       std::string::npos);
+  // (MuJoCo itself takes a negative time step)
+  EXPECT_NE(ErrorOf(dir.Write("back.xml", "<mujoco><option timestep=\"-0.001\"/></mujoco>"))
+                .find("back.xml: the time step is -0.001 s (<option timestep>)"),
+            std::string::npos);
   EXPECT_NE(ErrorOf(dir.Write("xml.xml", "<mujoco>\n<worldbody>\n</mujoco>"))
                 .find("xml.xml:2: not well-formed XML"),
             std::string::npos);
