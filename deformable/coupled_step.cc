@@ -34,6 +34,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
                               std::span<ContactPoint> contacts,
                               const ContactSettings& contact_settings,
                               const StepSettings& settings) {
+  settings.Validate();
   const double dt = settings.dt;
   const int num_bodies = static_cast<int>(bodies.size());
   std::vector<int> offset(num_bodies + 1, 0);

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <string>
 
 #include "deformable/corotational.h"
 #include "deformable/coupled_step.h"
@@ -455,7 +456,22 @@ void DeformableBody::Solve(StepReport& report) {
   solution_ = v + delta_v_;
 }
 
+void StepSettings::Validate() const {
+  auto fail = [](const std::string& message) { throw Error("step settings: " + message); };
+  if (!(dt > 0.0) || !std::isfinite(dt))
+    fail("dt is " + std::to_string(dt) + " s; give a finite time step > 0");
+  if (!gravity.allFinite()) fail("gravity is not finite");
+  if (!(cg_tolerance >= 0.0) || !std::isfinite(cg_tolerance) || !(rotation_tolerance >= 0.0) ||
+      !std::isfinite(rotation_tolerance)) {
+    fail("cg_tolerance and rotation_tolerance must be finite and >= 0");
+  }
+  if (cg_max_iterations < 1 || rotation_iterations < 1) {
+    fail("cg_max_iterations and rotation_iterations must be at least 1");
+  }
+}
+
 StepReport DeformableBody::Step(const StepSettings& settings) {
+  settings.Validate();
   StepReport report;
   if (settings.solver == LinearSolver::kConjugateGradient) {
     // the coupled step's solver with no contacts: block-Jacobi PCG on the

@@ -77,6 +77,12 @@ struct StepSettings {
   // several threads, and goes element-wise otherwise. Results agree to
   // rounding either way; each choice is deterministic.
   SystemProduct system_product = SystemProduct::kAuto;
+
+  // Throws Error for a setting no step can use: dt not finite and > 0,
+  // gravity not finite, a tolerance negative or not finite, or fewer than
+  // one iteration allowed. (Step and StepCoupled check it: a negative dt
+  // stepped backwards in time and reported kOk.)
+  void Validate() const;
 };
 
 enum class StepStatus { kOk, kDiverged };

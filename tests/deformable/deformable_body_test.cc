@@ -3,11 +3,13 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 #include <numbers>
 
 #include "collision/penetration.h"
 #include "deformable/contact.h"
 #include "deformable/coupled_step.h"
+#include "mesh/error.h"
 #include "mesh/generators.h"
 
 namespace tetcosim {
@@ -42,6 +44,32 @@ TEST(DeformableBody, FreeFallMatchesGravityAtSeveralTimeSteps) {
     double drop = -body.CenterOfMass().z();
     EXPECT_NEAR(drop, 0.5 * 9.81 * t * t + 0.5 * 9.81 * t * dt, 1e-9) << dt;
   }
+}
+
+// Settings no step can use are an error, from both solvers and from the
+// coupled step, and leave the body as it was (a negative dt stepped
+// backwards in time and reported kOk).
+TEST(DeformableBody, BadStepSettingsAreErrors) {
+  auto model = Model("box:size=0.05:res=2");
+  DeformableBody body(model, "box");
+  const Positions before = body.positions();
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  std::vector<StepSettings> bad(6);
+  bad[0].dt = -1e-3;
+  bad[1].dt = 0.0;
+  bad[2].dt = nan;
+  bad[3].gravity.x() = nan;
+  bad[4].cg_tolerance = -1.0;
+  bad[5].cg_max_iterations = 0;
+  for (size_t i = 0; i < bad.size(); ++i) {
+    for (LinearSolver solver : {LinearSolver::kConjugateGradient, LinearSolver::kCholesky}) {
+      bad[i].solver = solver;
+      EXPECT_THROW(body.Step(bad[i]), Error) << i;
+    }
+    DeformableBody* bodies[] = {&body};
+    EXPECT_THROW(StepCoupled(bodies, {}, ContactSettings{}, bad[i]), Error) << i;
+  }
+  EXPECT_EQ(body.positions(), before);
 }
 
 // the three ways to apply the system matrix agree: Eigen's sparse product, the
