@@ -4,8 +4,10 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <optional>
 
 #include "mesh/error.h"
+#include "mujoco_bridge/world.h"
 
 namespace tetcosim::app {
 namespace {
@@ -44,16 +46,15 @@ CLI::Validator NonNegativeFiniteNumber() {
 }
 
 long StepCount(double seconds, double dt, const std::string& option) {
-  constexpr double kMaxSteps = 9007199254740992.0;  // 2^53
-  const double count = std::round(seconds / dt);
-  if (!(count <= kMaxSteps)) {
+  const std::optional<long> steps = WholeSteps(seconds, dt);
+  if (!steps) {
     char message[256];
     std::snprintf(message, sizeof(message),
                   "%s %g s is %g steps of %g s, more than 2^53 (%.3g); give a shorter time",
-                  option.c_str(), seconds, count, dt, kMaxSteps);
+                  option.c_str(), seconds, std::round(seconds / dt), dt, 9007199254740992.0);
     throw Error(message);
   }
-  return std::max(1L, static_cast<long>(count));
+  return std::max(1L, *steps);
 }
 
 }  // namespace tetcosim::app

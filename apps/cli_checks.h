@@ -17,10 +17,9 @@ CLI::Validator PositiveFiniteNumber();
 // A finite number >= 0.
 CLI::Validator NonNegativeFiniteNumber();
 
-// The number of steps of dt (seconds, > 0) in `seconds` (> 0), rounded to
-// the nearest and at least 1. Throws Error, naming `option`, when that is
-// more than 2^53 steps (where the count stops being exact in a double, and
-// far beyond any run that could end).
+// WholeSteps (mujoco_bridge/world.h), at least 1, for seconds > 0 that a
+// command-line option gave: Error, naming `option`, when there are more than
+// 2^53.
 long StepCount(double seconds, double dt, const std::string& option);
 
 }  // namespace tetcosim::app

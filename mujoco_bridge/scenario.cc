@@ -2,18 +2,19 @@
 
 #include <cmath>
 #include <cstdio>
+#include <optional>
 
 #include "mesh/error.h"
 
 namespace tetcosim {
 namespace {
 
-// The whole steps of dt in `duration` (rounded): an Error for a duration
-// that is NaN, infinite, negative or more than 2^53 steps (rounding such a
-// count to a long ran no step at all, and Run reported success).
+// The whole steps of dt in `duration`: an Error for a duration that is NaN,
+// infinite, negative or more than 2^53 steps (rounding such a count to a
+// long ran no step at all, and Run reported success).
 long StepsIn(double duration, double dt, const char* caller) {
-  const double steps = std::round(duration / dt);
-  if (!(duration >= 0.0) || !(steps <= 9007199254740992.0)) {
+  const std::optional<long> steps = WholeSteps(duration, dt);
+  if (!steps) {
     char message[160];
     std::snprintf(message, sizeof(message),
                   "Scenario::%s: a duration of %g s at steps of %g s; give a finite duration >= 0 "
@@ -21,7 +22,7 @@ long StepsIn(double duration, double dt, const char* caller) {
                   caller, duration, dt);
     throw Error(message);
   }
-  return static_cast<long>(steps);
+  return *steps;
 }
 
 }  // namespace

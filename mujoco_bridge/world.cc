@@ -230,6 +230,12 @@ struct World::Proxy {
   double friction = 0.5;
 };
 
+std::optional<long> WholeSteps(double seconds, double dt) {
+  const double steps = std::round(seconds / dt);
+  if (!(seconds >= 0.0) || !(steps <= 9007199254740992.0)) return std::nullopt;  // 2^53
+  return static_cast<long>(steps);
+}
+
 World::~World() {
   if (data_) mj_deleteData(data_);
   if (model_) mj_deleteModel(model_);

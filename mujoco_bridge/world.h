@@ -19,6 +19,7 @@
 #include <Eigen/Core>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -68,6 +69,12 @@ struct StepMetrics {
   StepStatus status = StepStatus::kOk;
   std::string message;  // with kDiverged: body, vertex, step
 };
+
+// The whole number of steps of dt (s, > 0) in `seconds`, rounded to the
+// nearest; nothing for seconds that are NaN, infinite or negative, or that
+// make more than 2^53 steps (where the count stops being exact in a double,
+// and far beyond any run that could end): callers say which value was bad.
+std::optional<long> WholeSteps(double seconds, double dt);
 
 class World {
  public:
