@@ -12,9 +12,15 @@ namespace tetcosim::app {
 
 inline std::atomic<bool> interrupted{false};
 
-// SIGINT, SIGTERM and SIGHUP set `interrupted` from now on.
+// SIGINT, SIGTERM and SIGHUP set `interrupted` from now on, except those the
+// process was started ignoring (`nohup` ignores SIGHUP, a shell's
+// background job SIGINT): they stay ignored.
 inline void CatchInterrupt() {
-  for (int signal : {SIGINT, SIGTERM, SIGHUP}) std::signal(signal, [](int) { interrupted = true; });
+  for (int signal : {SIGINT, SIGTERM, SIGHUP}) {
+    if (std::signal(signal, [](int) { interrupted = true; }) == SIG_IGN) {
+      std::signal(signal, SIG_IGN);
+    }
+  }
 }
 
 }  // namespace tetcosim::app
