@@ -375,6 +375,24 @@ TEST(RunCommand, TerminatedRunKeepsValidOutputs) {
   EXPECT_EQ(rows, steps);
 }
 
+// Under nohup (SIGHUP ignored from the start) a hangup does not stop the
+// rollout; SIGTERM still does.
+TEST(RunCommand, NohupRunIgnoresHangup) {
+  TempDir dir;
+  const std::string out = (dir.path() / "out").string();
+  const std::string run = "nohup " + std::string(TETCOSIM_BINARY) + " run " + TETCOSIM_SOURCE_DIR +
+                          "/models/scenes/cube_on_box.xml --duration 1000 --out " + out;
+  const std::string command = "sh -c '" + run + " > /dev/null 2>&1 & pid=$!; i=0; " +
+                              "while [ $(cat " + out + "/steps.csv 2>/dev/null | wc -l) -lt 20 ] " +
+                              "&& [ $i -lt 1200 ]; do sleep 0.05; i=$((i+1)); done; " +
+                              "kill -HUP $pid; sleep 0.5; kill -0 $pid && echo alive; " +
+                              "kill -TERM $pid; wait $pid'";
+  const auto [status, text] = RunShell(command);
+  EXPECT_NE(text.find("alive"), std::string::npos) << "stopped by SIGHUP under nohup";
+  std::ifstream summary_file(out + "/summary.json");
+  EXPECT_EQ(nlohmann::json::parse(summary_file)["status"], "interrupted");
+}
+
 TEST(CompareCommand, WritesOneRowPerMethodAndTimestep) {
   TempDir dir;
   const std::string out = (dir.path() / "compare").string();
