@@ -132,6 +132,9 @@ class SceneParser {
     scene.path = path_;
     tinyxml2::XMLDocument document;
     if (!std::filesystem::exists(path_)) ThrowAt(path_, 0, "cannot open: no such file");
+    if (std::filesystem::is_directory(path_)) {
+      ThrowAt(path_, 0, "is a folder, not a scene file (MJCF with a <deformable> element)");
+    }
     if (document.LoadFile(path_.c_str()) != tinyxml2::XML_SUCCESS) {
       ThrowAt(path_, document.ErrorLineNum(),
               std::string("not well-formed XML: ") + document.ErrorStr());

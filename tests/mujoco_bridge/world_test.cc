@@ -107,6 +107,7 @@ TEST(SceneLoading, BadScenesNameTheLine) {
                 .find("xml.xml:2: not well-formed XML"),
             std::string::npos);
   EXPECT_NE(ErrorOf((dir.path() / "none.xml").string()).find("cannot open"), std::string::npos);
+  EXPECT_NE(ErrorOf(dir.path().string()).find("is a folder, not a scene file"), std::string::npos);
 }
 
 // zero gravity: a soft ball thrown at a free rigid box with a tetrahedral proxy
