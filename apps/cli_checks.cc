@@ -51,7 +51,7 @@ long StepCount(double seconds, double dt, const std::string& option) {
     char message[256];
     std::snprintf(message, sizeof(message),
                   "%s %g s is %g steps of %g s, more than 2^53 (%.3g); give a shorter time",
-                  option.c_str(), seconds, std::round(seconds / dt), dt, 9007199254740992.0);
+                  option.c_str(), seconds, std::round(seconds / dt), dt, kMaxWholeSteps);
     throw Error(message);
   }
   return std::max(1L, *steps);

@@ -471,7 +471,6 @@ void StepSettings::Validate() const {
 }
 
 StepReport DeformableBody::Step(const StepSettings& settings) {
-  settings.Validate();
   StepReport report;
   if (settings.solver == LinearSolver::kConjugateGradient) {
     // the coupled step's solver with no contacts: block-Jacobi PCG on the
@@ -485,6 +484,7 @@ StepReport DeformableBody::Step(const StepSettings& settings) {
     report.residual = coupled.residual;
     return report;
   }
+  settings.Validate();  // (the path above: StepCoupled checks them)
   Eigen::setNbThreads(std::max(1, settings.num_threads));
   Assemble(settings, true);
   ApplyPins(settings);

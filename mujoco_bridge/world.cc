@@ -8,7 +8,6 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
-#include <limits>
 #include <sstream>
 #include <string>
 
@@ -232,7 +231,7 @@ struct World::Proxy {
 
 std::optional<long> WholeSteps(double seconds, double dt) {
   const double steps = std::round(seconds / dt);
-  if (!(seconds >= 0.0) || !(steps <= 9007199254740992.0)) return std::nullopt;  // 2^53
+  if (!(seconds >= 0.0) || !(steps <= kMaxWholeSteps)) return std::nullopt;
   return static_cast<long>(steps);
 }
 

@@ -72,8 +72,10 @@ struct StepMetrics {
 
 // The whole number of steps of dt (s, > 0) in `seconds`, rounded to the
 // nearest; nothing for seconds that are NaN, infinite or negative, or that
-// make more than 2^53 steps (where the count stops being exact in a double,
-// and far beyond any run that could end): callers say which value was bad.
+// make more than kMaxWholeSteps (2^53: where the count stops being exact in
+// a double, and far beyond any run that could end): callers say which value
+// was bad.
+inline constexpr double kMaxWholeSteps = 9007199254740992.0;
 std::optional<long> WholeSteps(double seconds, double dt);
 
 class World {
