@@ -342,20 +342,27 @@ TEST(RunCommand, OutputsParse) {
   }
 }
 
+// A shell command that starts a long rollout of cube_on_box into `out`
+// (`prefix` before the binary, e.g. "nohup "), waits until it has written
+// 20 steps (at most 60 s), then runs `then`, the rollout's process id in
+// $pid.
+std::string DuringALongRollout(const std::string& prefix, const std::string& out,
+                               const std::string& then) {
+  const std::string run = prefix + TETCOSIM_BINARY + " run " + TETCOSIM_SOURCE_DIR +
+                          "/models/scenes/cube_on_box.xml --duration 1000 --out " + out;
+  return "sh -c '" + run + " > /dev/null 2>&1 & pid=$!; i=0; while [ $(cat " + out +
+         "/steps.csv 2>/dev/null | wc -l) -lt 20 ] && [ $i -lt 1200 ]; do sleep 0.05; " +
+         "i=$((i+1)); done; " + then + "'";
+}
+
 // A rollout stopped by SIGTERM (kill, timeout, a cancelled CI job) stops at
 // the next step with its files complete: summary.json says "interrupted",
 // every row of steps.csv is whole.
 TEST(RunCommand, TerminatedRunKeepsValidOutputs) {
   TempDir dir;
   const std::string out = (dir.path() / "out").string();
-  const std::string run = std::string(TETCOSIM_BINARY) + " run " + TETCOSIM_SOURCE_DIR +
-                          "/models/scenes/cube_on_box.xml --duration 1000 --out " + out;
-  // start it, wait (at most 60 s) until it has written a few steps, stop it
-  const std::string command = "sh -c '" + run + " > /dev/null 2>&1 & pid=$!; i=0; " +
-                              "while [ $(cat " + out + "/steps.csv 2>/dev/null | wc -l) -lt 20 ] " +
-                              "&& [ $i -lt 1200 ]; do sleep 0.05; i=$((i+1)); done; " +
-                              "kill -TERM $pid; wait $pid; exit $?'";
-  const int status = std::system(command.c_str());
+  const auto [status, text] =
+      RunShell(DuringALongRollout("", out, "kill -TERM $pid; wait $pid; exit $?"));
   ASSERT_TRUE(WIFEXITED(status)) << "killed by the signal instead of stopping";
   EXPECT_EQ(WEXITSTATUS(status), 1);  // (an interrupted run is not a success)
   std::ifstream summary_file(out + "/summary.json");
@@ -381,14 +388,10 @@ TEST(RunCommand, TerminatedRunKeepsValidOutputs) {
 TEST(RunCommand, NohupRunIgnoresHangup) {
   TempDir dir;
   const std::string out = (dir.path() / "out").string();
-  const std::string run = "nohup " + std::string(TETCOSIM_BINARY) + " run " + TETCOSIM_SOURCE_DIR +
-                          "/models/scenes/cube_on_box.xml --duration 1000 --out " + out;
-  const std::string command = "sh -c '" + run + " > /dev/null 2>&1 & pid=$!; i=0; " +
-                              "while [ $(cat " + out + "/steps.csv 2>/dev/null | wc -l) -lt 20 ] " +
-                              "&& [ $i -lt 1200 ]; do sleep 0.05; i=$((i+1)); done; " +
-                              "kill -HUP $pid; sleep 0.5; kill -0 $pid && echo alive; " +
-                              "kill -TERM $pid; wait $pid'";
-  const auto [status, text] = RunShell(command);
+  const auto [status, text] = RunShell(
+      DuringALongRollout("nohup ", out,
+                         "kill -HUP $pid; sleep 0.5; kill -0 $pid && echo alive; kill -TERM $pid; "
+                         "wait $pid"));
   EXPECT_NE(text.find("alive"), std::string::npos) << "stopped by SIGHUP under nohup";
   std::ifstream summary_file(out + "/summary.json");
   EXPECT_EQ(nlohmann::json::parse(summary_file)["status"], "interrupted");
