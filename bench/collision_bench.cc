@@ -29,10 +29,18 @@
 namespace tetcosim {
 namespace {
 
+// A moving scene's time steps: each object's positions at kMovingSteps
+// steps of 1 ms, solved forth and back (0, 1, ..., 15, 14, ..., 1, 0, ...:
+// every solve a step away from the last, as in a simulation).
+constexpr int kMovingSteps = 16;
+constexpr double kMovingDt = 1e-3;
+
 struct Scene {
   std::vector<std::unique_ptr<TetMesh>> meshes;
   std::vector<std::unique_ptr<Positions>> positions;
   std::vector<CollisionObject> objects;
+  // moving scenes only (MakeMoving): steps[s][o], object o's positions at step s
+  std::vector<std::vector<Positions>> steps;
 
   void Add(const TetMesh& mesh, const Eigen::Vector3d& translation, double angle = 0.0) {
     // meshes of the same shape are shared, as scenes do
@@ -49,7 +57,36 @@ struct Scene {
     meshes.push_back(std::make_unique<TetMesh>(TetMesh::Build(MakeShape(spec))));
     return *meshes.back();
   }
+
+  // Gives every object a velocity of up to `speed` (m/s) along each axis,
+  // drawn from a seeded generator, and keeps its positions at each step.
+  void MakeMoving(double speed) {
+    std::mt19937 rng(1998);
+    std::uniform_real_distribution<double> component(-speed, speed);
+    steps.assign(kMovingSteps, {});
+    for (const std::unique_ptr<Positions>& start : positions) {
+      const Eigen::RowVector3d velocity(component(rng), component(rng), component(rng));
+      for (int step = 0; step < kMovingSteps; ++step) {
+        steps[step].push_back(*start);
+        steps[step].back().rowwise() += velocity * (kMovingDt * step);
+      }
+    }
+  }
+  // Points the objects at the positions of step `step` (a moving scene).
+  void ShowStep(int step) {
+    for (size_t o = 0; o < objects.size(); ++o) objects[o].positions = &steps[step][o];
+  }
 };
+
+// The step a moving scene's `solve`-th solve shows (forth and back).
+int PingPong(long solve) {
+  const int k = static_cast<int>(solve % (2 * (kMovingSteps - 1)));
+  return k < kMovingSteps ? k : 2 * (kMovingSteps - 1) - k;
+}
+
+// How fast the objects of the moving scenes go, per axis: a pile settling,
+// two bodies pressed together (m/s).
+constexpr double kMovingSpeed = 0.2;
 
 // the paper's cube: 1250 tetrahedra (5 x 5 x 10 cells, 5 tets each), 10 cm
 constexpr const char* kCube = "box:size=0.05,0.05,0.05:res=5,5,10:split=5";
@@ -70,64 +107,102 @@ void AddCubePairs(Scene& scene, double overlap, int copies) {
 // 2 and 3), propagation (4), closest features
 constexpr int kStages = 6;
 
-void Report(benchmark::State& state, const PenetrationSolver& solver, double total,
-            const double stages[kStages]) {
+// `colliding` and `edges`: summed over the timed solves
+void Report(benchmark::State& state, double total, const double stages[kStages], double colliding,
+            double edges) {
   const double iterations = static_cast<double>(state.iterations());
-  const int colliding = solver.stats().colliding;
-  state.counters["colliding"] = colliding;
-  state.counters["edges"] = solver.stats().intersection_edges;
-  state.counters["us_per_point"] = colliding > 0 ? total / iterations / colliding * 1e6 : 0.0;
+  state.counters["colliding"] = colliding / iterations;  // per solve
+  state.counters["edges"] = edges / iterations;
+  state.counters["us_per_point"] = colliding > 0 ? total / colliding * 1e6 : 0.0;
   // what the paper times as resolving a colliding point: everything after
   // stage 1 has found it (surfaces, stages 2 to 4, closest features)
   double resolve = 0.0;
   for (int i = 2; i < kStages; ++i) resolve += stages[i];
-  state.counters["us_resolve_per_point"] =
-      colliding > 0 ? resolve / iterations / colliding * 1e6 : 0.0;
+  state.counters["us_resolve_per_point"] = colliding > 0 ? resolve / colliding * 1e6 : 0.0;
   const char* names[kStages] = {"ms_hash",      "ms_inside",    "ms_surfaces",
                                 "ms_intersect", "ms_propagate", "ms_closest"};
   for (int i = 0; i < kStages; ++i) state.counters[names[i]] = stages[i] / iterations * 1e3;
 }
 
-void Run(benchmark::State& state, const Scene& scene) {
+// Solves the scene over and over: the same positions every time, or, in a
+// moving scene, the next step's. (One configuration solved again and again
+// lets the core's branch predictor learn a small scene's branches by heart:
+// 120 paper spheres took 0.6 to 0.8 us a point so, against 1.1 when each
+// solve sees the next step; see docs/performance.md.)
+void Run(benchmark::State& state, Scene& scene) {
   PenetrationOptions options;
   options.method = state.range(1) == 0 ? DepthMethod::kConsistent : DepthMethod::kClosest;
   options.num_threads = static_cast<int>(state.range(2));
   PenetrationSolver solver(options);
-  solver.Solve(scene.objects);  // warm: buffers grown
-  double total = 0.0;
+  const bool moving = !scene.steps.empty();
+  for (int step = 0; step < (moving ? kMovingSteps : 1); ++step) {  // warm: buffers grown
+    if (moving) scene.ShowStep(step);
+    solver.Solve(scene.objects);
+  }
+  double total = 0.0, colliding = 0.0, edges = 0.0;
   double stages[kStages] = {};
+  long solve = 0;
   for (auto _ : state) {
+    if (moving) scene.ShowStep(PingPong(solve++));
     solver.Solve(scene.objects);
     const PenetrationTimings& t = solver.timings();
     total += t.total;
     const double s[kStages] = {t.hash, t.inside, t.surfaces, t.intersect, t.propagate, t.closest};
     for (int i = 0; i < kStages; ++i) stages[i] += s[i];
+    colliding += solver.stats().colliding;
+    edges += solver.stats().intersection_edges;
     benchmark::DoNotOptimize(solver.results().data());
   }
-  Report(state, solver, total, stages);
+  Report(state, total, stages, colliding, edges);
 }
 
-void BM_TwoCubes(benchmark::State& state) {
+// The scenes the collision issue names, each twice: as built (BM_TwoCubes,
+// ...), solved again and again, and moving (BM_TwoCubesMoving, ...), every
+// object at up to kMovingSpeed, each solve the next time step.
+void Finish(benchmark::State& state, Scene& scene, bool moving) {
+  if (moving) scene.MakeMoving(kMovingSpeed);
+  Run(state, scene);
+}
+
+void TwoCubes(benchmark::State& state, bool moving) {
   Scene scene;
   AddCubePairs(scene, static_cast<double>(state.range(0)) / 100.0, 1);
-  Run(state, scene);
+  Finish(state, scene, moving);
 }
-BENCHMARK(BM_TwoCubes)
-    ->ArgsProduct({{10, 30, 50, 70}, {0, 1}, {1, 2}})
-    ->ArgNames({"overlap%", "closest", "threads"})
-    ->Unit(benchmark::kMicrosecond)
-    ->UseRealTime();
+void TwoCubesArgs(benchmark::internal::Benchmark* b) {
+  b->ArgsProduct({{10, 30, 50, 70}, {0, 1}, {1, 2}})
+      ->ArgNames({"overlap%", "closest", "threads"})
+      ->Unit(benchmark::kMicrosecond)
+      ->UseRealTime();
+}
+void BM_TwoCubes(benchmark::State& state) {
+  TwoCubes(state, false);
+}
+void BM_TwoCubesMoving(benchmark::State& state) {
+  TwoCubes(state, true);
+}
+BENCHMARK(BM_TwoCubes)->Apply(TwoCubesArgs);
+BENCHMARK(BM_TwoCubesMoving)->Apply(TwoCubesArgs);
 
-void BM_CubePairsScaling(benchmark::State& state) {
+void CubePairsScaling(benchmark::State& state, bool moving) {
   Scene scene;
   AddCubePairs(scene, 0.3, static_cast<int>(state.range(0)));
-  Run(state, scene);
+  Finish(state, scene, moving);
 }
-BENCHMARK(BM_CubePairsScaling)
-    ->ArgsProduct({{1, 2, 5, 10}, {0}, {1}})
-    ->ArgNames({"copies", "closest", "threads"})
-    ->Unit(benchmark::kMicrosecond)
-    ->UseRealTime();
+void CubePairsScalingArgs(benchmark::internal::Benchmark* b) {
+  b->ArgsProduct({{1, 2, 5, 10}, {0}, {1}})
+      ->ArgNames({"copies", "closest", "threads"})
+      ->Unit(benchmark::kMicrosecond)
+      ->UseRealTime();
+}
+void BM_CubePairsScaling(benchmark::State& state) {
+  CubePairsScaling(state, false);
+}
+void BM_CubePairsScalingMoving(benchmark::State& state) {
+  CubePairsScaling(state, true);
+}
+BENCHMARK(BM_CubePairsScaling)->Apply(CubePairsScalingArgs);
+BENCHMARK(BM_CubePairsScalingMoving)->Apply(CubePairsScalingArgs);
 
 // paper spheres (radius 2 cm, 20 tetrahedra) in a lattice of 6 layers
 // spaced 1.5 radii with a seeded jitter: every sphere overlaps its
@@ -135,7 +210,7 @@ BENCHMARK(BM_CubePairsScaling)
 // times as large, about as wide as long (how the cost per point grows with
 // a pile's size): 240 in 5 x 8, 480 in 10 x 8, 1200 in 20 x 10, 2400 in
 // 20 x 20, 4800 in 40 x 20, 9600 in 40 x 40 (x 6 layers)
-void BM_PaperSpheres(benchmark::State& state) {
+void PaperSpheres(benchmark::State& state, bool moving) {
   Scene scene;
   const TetMesh& sphere = scene.Mesh("sphere:size=0.02:res=0");
   const int count = static_cast<int>(state.range(0));
@@ -153,33 +228,47 @@ void BM_PaperSpheres(benchmark::State& state) {
       }
     }
   }
-  Run(state, scene);
+  Finish(state, scene, moving);
 }
-BENCHMARK(BM_PaperSpheres)
-    ->ArgsProduct({{120, 1200}, {0, 1}, {1, 2}})
-    ->ArgNames({"spheres", "closest", "threads"})
-    ->Unit(benchmark::kMicrosecond)
-    ->UseRealTime();
-BENCHMARK(BM_PaperSpheres)
-    ->ArgsProduct({{240, 480, 2400, 4800, 9600}, {0}, {1}})
-    ->ArgNames({"spheres", "closest", "threads"})
-    ->Unit(benchmark::kMicrosecond)
-    ->UseRealTime();
+void PaperSpheresArgs(benchmark::internal::Benchmark* b) {
+  b->ArgsProduct({{120, 1200}, {0, 1}, {1, 2}})
+      ->ArgsProduct({{240, 480, 2400, 4800, 9600}, {0}, {1}})
+      ->ArgNames({"spheres", "closest", "threads"})
+      ->Unit(benchmark::kMicrosecond)
+      ->UseRealTime();
+}
+void BM_PaperSpheres(benchmark::State& state) {
+  PaperSpheres(state, false);
+}
+void BM_PaperSpheresMoving(benchmark::State& state) {
+  PaperSpheres(state, true);
+}
+BENCHMARK(BM_PaperSpheres)->Apply(PaperSpheresArgs);
+BENCHMARK(BM_PaperSpheresMoving)->Apply(PaperSpheresArgs);
 
 // about 100k tetrahedra: two blocks of 20 x 20 x 21 cells (50,400 tets each)
 // overlapping by 20% of their width
-void BM_LargeScene(benchmark::State& state) {
+void LargeScene(benchmark::State& state, bool moving) {
   Scene scene;
   const TetMesh& block = scene.Mesh("box:size=0.1,0.1,0.105:res=20,20,21");
   scene.Add(block, Eigen::Vector3d::Zero());
   scene.Add(block, Eigen::Vector3d(0.16, 0.013, -0.011), 0.05);
-  Run(state, scene);
+  Finish(state, scene, moving);
 }
-BENCHMARK(BM_LargeScene)
-    ->ArgsProduct({{100}, {0, 1}, {1, 2}})
-    ->ArgNames({"ktets", "closest", "threads"})
-    ->Unit(benchmark::kMillisecond)
-    ->UseRealTime();
+void LargeSceneArgs(benchmark::internal::Benchmark* b) {
+  b->ArgsProduct({{100}, {0, 1}, {1, 2}})
+      ->ArgNames({"ktets", "closest", "threads"})
+      ->Unit(benchmark::kMillisecond)
+      ->UseRealTime();
+}
+void BM_LargeScene(benchmark::State& state) {
+  LargeScene(state, false);
+}
+void BM_LargeSceneMoving(benchmark::State& state) {
+  LargeScene(state, true);
+}
+BENCHMARK(BM_LargeScene)->Apply(LargeSceneArgs);
+BENCHMARK(BM_LargeSceneMoving)->Apply(LargeSceneArgs);
 
 // a coarse box (one cell, 1 m: a rigid proxy meshed at resolution 1) with a
 // corner in a finely meshed ball (radius 2 cm, subdivision `level`): the
