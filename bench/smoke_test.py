@@ -1,0 +1,42 @@
+#!/usr/bin/env python3
+"""Runs every benchmark of a Google Benchmark program once (the shortest
+run the library allows) and fails if the program fails, reports an error,
+runs no benchmark, or, with --counter NAME, a benchmark's counter NAME is
+not positive (a collision scene that no longer collides measures nothing).
+
+    bench/smoke_test.py PROGRAM [--counter NAME]
+
+Registered with CTest (label bench) by bench/CMakeLists.txt: the suite then
+catches a benchmark program that crashes or whose scenes went wrong. It
+says nothing about speed; see docs/performance.md for that."""
+import argparse
+import json
+import subprocess
+import sys
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("program")
+    parser.add_argument("--counter", help="a counter that must be > 0 in every benchmark")
+    args = parser.parse_args()
+    run = subprocess.run([args.program, "--benchmark_min_time=0.000001", "--benchmark_format=json"],
+                         capture_output=True, text=True)
+    if run.returncode != 0:
+        sys.exit(f"error: {args.program} exited with status {run.returncode}:\n{run.stderr}")
+    benchmarks = json.loads(run.stdout)["benchmarks"]
+    if not benchmarks:
+        sys.exit(f"error: {args.program} ran no benchmark")
+    failed = []
+    for b in benchmarks:
+        if b.get("error_occurred"):
+            failed.append(f"{b['name']}: {b.get('error_message', 'error')}")
+        elif args.counter and not b.get(args.counter, 0) > 0:
+            failed.append(f"{b['name']}: {args.counter} = {b.get(args.counter)}, expected > 0")
+    if failed:
+        sys.exit("error: " + "\n  ".join([f"{len(failed)} of {len(benchmarks)} benchmarks:"] + failed))
+    print(f"{len(benchmarks)} benchmarks ran")
+
+
+if __name__ == "__main__":
+    main()
