@@ -655,6 +655,8 @@ void World::CollectContacts() {
     contact_rigid_body_.push_back(rigid);
   }
   const PenetrationStats& stats = solver_.stats();
+  metrics_.penetration_ms += solver_.timings().total * 1e3;
+  metrics_.penetration_points += stats.colliding;
   metrics_.fallback_points = stats.fallback;
   metrics_.unresolved_points = stats.unresolved;
   AddGeomContacts();

@@ -62,6 +62,10 @@ struct StepMetrics {
   double max_depth = 0.0;
   double mean_depth = 0.0;
   double collision_ms = 0.0;
+  // the penetration solver's part of collision_ms, and its colliding points
+  // (penetration results; colliding_points adds the geom contacts)
+  double penetration_ms = 0.0;
+  int penetration_points = 0;
   double deformable_ms = 0.0;
   double mujoco_ms = 0.0;
   double total_ms = 0.0;

@@ -316,6 +316,13 @@ TEST(RunCommand, OutputsParse) {
   EXPECT_EQ(metrics["pass_through_pairs"], 0);
   EXPECT_EQ(metrics["sticking_pairs"], 0);
   EXPECT_LT(metrics["residual_max_depth"].get<double>(), 1e-3);
+  // the penetration solver (the box is a proxy) runs inside the collision
+  // phase: its time is part of that phase's
+  const nlohmann::json& contacts = summary["contacts"];
+  EXPECT_GT(contacts["penetration_ms_per_step"].get<double>(), 0.0);
+  EXPECT_LE(contacts["penetration_ms_per_step"].get<double>(),
+            summary["ms_per_step"]["collision"].get<double>());
+  EXPECT_GT(contacts["penetration_us_per_point"].get<double>(), 0.0);
   int rows = 0;
   while (std::getline(steps, line)) ++rows;
   EXPECT_EQ(rows, 100);
