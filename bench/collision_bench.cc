@@ -8,7 +8,9 @@
 // fallback), fine cubes on a coarse slab (triangles too large to hash)
 // and on a less coarse one (tetrahedra too large to search cell by cell),
 // and one small ball on rigid slabs of 7,500 to 480,000 tetrahedra (what a
-// large body costs beyond its contacts).
+// large body costs beyond its contacts). The scenes also run moving
+// (BM_TwoCubesMoving, ...: each solve the next time step, as in a
+// simulation).
 //
 // Counters: colliding points, intersection edges (stage 2), microseconds
 // per colliding point (from the solver's own wall-clock timing of Solve),
@@ -129,8 +131,9 @@ void Report(benchmark::State& state, double total, const double stages[kStages],
 // Solves the scene over and over: the same positions every time, or, in a
 // moving scene, the next step's. (One configuration solved again and again
 // lets the core's branch predictor learn a small scene's branches by heart:
-// 120 paper spheres took 0.6 to 0.8 us a point so, against 1.1 when each
-// solve sees the next step; see docs/performance.md.)
+// 120 paper spheres took 0.72 us a point so, against 0.96 moving, fastest
+// of 6 runs; in a rollout, where the deformable step runs between solves,
+// the solver takes 2.4: see docs/performance.md.)
 void Run(benchmark::State& state, Scene& scene) {
   PenetrationOptions options;
   options.method = state.range(1) == 0 ? DepthMethod::kConsistent : DepthMethod::kClosest;
