@@ -12,7 +12,8 @@
 // (BM_TwoCubesMoving, ...: each solve the next time step, as in a
 // simulation).
 //
-// Counters: colliding points, intersection edges (stage 2), microseconds
+// Counters: colliding points and intersection edges (stage 2) per solve
+// (the mean over the solves of a moving scene), microseconds
 // per colliding point (from the solver's own wall-clock timing of Solve),
 // the same for resolving the points found (all but stage 1), and
 // milliseconds per stage.
