@@ -36,7 +36,10 @@ class SceneParser {
       if (!known) {
         std::string list;
         for (const char* name : allowed) list += std::string(list.empty() ? "" : ", ") + name;
-        Fail(element, "unknown attribute '" + std::string(a->Name()) + "'; allowed: " + list);
+        Fail(element, "unknown attribute '" + std::string(a->Name()) + "'; " +
+                          (list.empty() ? "this element takes no attributes (its settings are "
+                                          "child elements)"
+                                        : "allowed: " + list));
       }
     }
   }

@@ -94,6 +94,13 @@ TEST(SceneLoading, BadScenesNameTheLine) {
     EXPECT_NE(message.find(c.expected), std::string::npos)
         << "got: " << message << "\nexpected: " << c.expected;
   }
+  // an element without attributes says so (it listed none after "allowed:")
+  EXPECT_NE(ErrorOf(dir.Write("bare.xml",
+                              "<mujoco>\n<deformable young=\"1e5\">\n</deformable>\n"
+                              "</mujoco>\n"))
+                .find("bare.xml:2: <deformable>: unknown attribute 'young'; this element takes no "
+                      "attributes"),
+            std::string::npos);
   EXPECT_NE(
       ErrorOf(dir.Write("bad.xml",
                         "<mujoco><worldbody>\n<geom type=\"nonsense\"/></worldbody></mujoco>"))
