@@ -6,6 +6,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <numbers>
 #include <set>
 #include <sstream>
@@ -59,10 +60,16 @@ class SceneParser {
       }
       values.push_back(value);
     }
-    if (values.size() < min_count || values.size() > max_count) {
-      Fail(element, std::string(name) + " takes " + std::to_string(min_count) +
-                        (max_count != min_count ? " to " + std::to_string(max_count) : "") +
-                        " numbers, got " + std::to_string(values.size()));
+    // (an attribute written but blank is not an attribute left out: both
+    // kinds of mistake, name="" and name=" ", would otherwise give defaults)
+    if (values.size() < std::max<size_t>(min_count, 1) || values.size() > max_count) {
+      Fail(element,
+           std::string(name) + " takes " + std::to_string(std::max<size_t>(min_count, 1)) +
+               (max_count > std::max<size_t>(min_count, 1) ? " to " + std::to_string(max_count)
+                                                           : "") +
+               (max_count == 1 ? " number" : " numbers") + ", got " +
+               std::to_string(values.size()) +
+               (values.empty() ? "; give a value or leave the attribute out" : ""));
     }
     return values;
   }
@@ -158,9 +165,22 @@ class SceneParser {
     if (deformable) {
       CheckAttributes(deformable, {});
       std::set<std::string> names;
+      // scene-wide settings: one element each (a second silently replaced
+      // what the first set)
+      std::map<std::string, int> settings_line;
+      // a geom's proxy: one (two would count its contacts twice)
+      std::map<std::pair<std::string, std::string>, long> proxy_line;
       for (const XMLElement* child = deformable->FirstChildElement(); child;
            child = child->NextSiblingElement()) {
         std::string kind = child->Name();
+        if (kind == "contact" || kind == "solver") {
+          const auto [at, inserted] = settings_line.insert({kind, child->GetLineNum()});
+          if (!inserted) {
+            Fail(child, "only one <" + kind +
+                            "> is allowed inside <deformable> (the first is on line " +
+                            std::to_string(at->second) + "); merge their attributes");
+          }
+        }
         if (kind == "tetbody") {
           scene.tetbodies.push_back(TetBody(child));
           if (!names.insert(scene.tetbodies.back().name).second) {
@@ -168,6 +188,15 @@ class SceneParser {
           }
         } else if (kind == "rigidtet") {
           scene.rigidtets.push_back(RigidTet(child));
+          const RigidTetSpec& spec = scene.rigidtets.back();
+          if (!spec.geom.empty()) {
+            const auto [at, inserted] = proxy_line.insert({{spec.body, spec.geom}, spec.line});
+            if (!inserted) {
+              Fail(child, "geom '" + spec.geom + "' of body '" + spec.body +
+                              "' has a <rigidtet> already (line " + std::to_string(at->second) +
+                              "); its contacts would count twice: remove one");
+            }
+          }
         } else if (kind == "attach") {
           scene.attachments.push_back(Attach(child));
         } else if (kind == "contact") {

@@ -219,6 +219,22 @@ std::string SkinXml(const DeformableBody& body, const Eigen::Vector4d& rgba,
   return xml.str();
 }
 
+// MuJoCo's error on one line, its lines trimmed and joined by "; " (it
+// puts where the error is, "Element 'geom', line 4", on a line of its own,
+// which then read as a separate message after ours)
+std::string OneLine(const std::string& text) {
+  std::string joined;
+  std::istringstream lines(text);
+  for (std::string line; std::getline(lines, line);) {
+    const size_t first = line.find_first_not_of(" \t\r");
+    if (first == std::string::npos) continue;
+    const size_t last = line.find_last_not_of(" \t\r");
+    if (!joined.empty()) joined += "; ";
+    joined.append(line, first, last - first + 1);
+  }
+  return joined;
+}
+
 }  // namespace
 
 struct World::Proxy {
@@ -319,7 +335,7 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
     size_t at = message.find(vfs_name);
     if (at != std::string::npos)
       message.replace(at, vfs_name.size(), std::filesystem::path(scene_path).filename().string());
-    ThrowAt(scene_path, 0, "MuJoCo rejected the scene: " + message);
+    ThrowAt(scene_path, 0, "MuJoCo rejected the scene: " + OneLine(message));
   }
   mjModel* m = world->model_;
   if (options.timestep) m->opt.timestep = *options.timestep;

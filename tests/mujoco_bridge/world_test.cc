@@ -87,6 +87,20 @@ TEST(SceneLoading, BadScenesNameTheLine) {
       {"<tetbody name=\"a\" shape=\"sphere\" size=\"0.1\"/>\n<attach tetbody=\"zz\" body=\"b\" "
        "vertices=\"0\"/>\n",
        "scene.xml:7: <attach>: no tetbody named 'zz'"},
+      // written but blank is not left out (it gave the default)
+      {"<tetbody name=\"a\" shape=\"sphere\" size=\"0.1\" damping=\" \"/>\n",
+       "scene.xml:6: <tetbody>: damping takes 1 to 2 numbers, got 0; give a value or leave the "
+       "attribute out"},
+      {"<contact friction=\"\"/>\n", "scene.xml:6: <contact>: friction takes 1 number, got 0"},
+      // a second settings element replaced the first's settings
+      {"<contact friction=\"0.5\"/>\n<contact damping=\"0.1\"/>\n",
+       "scene.xml:7: <contact>: only one <contact> is allowed inside <deformable> (the first is on "
+       "line 6)"},
+      {"<solver substeps=\"2\"/>\n<solver maxiter=\"10\"/>\n",
+       "scene.xml:7: <solver>: only one <solver> is allowed"},
+      // two proxies of one geom counted its contacts twice
+      {"<rigidtet body=\"b\" geom=\"g\"/>\n<rigidtet body=\"b\" geom=\"g\" resolution=\"2\"/>\n",
+       "scene.xml:7: <rigidtet>: geom 'g' of body 'b' has a <rigidtet> already (line 6)"},
   };
   for (const Case& c : cases) {
     std::string path = dir.Write("scene.xml", head + c.body + "</deformable>\n</mujoco>\n");
@@ -101,11 +115,12 @@ TEST(SceneLoading, BadScenesNameTheLine) {
                 .find("bare.xml:2: <deformable>: unknown attribute 'young'; this element takes no "
                       "attributes"),
             std::string::npos);
-  EXPECT_NE(
-      ErrorOf(dir.Write("bad.xml",
-                        "<mujoco><worldbody>\n<geom type=\"nonsense\"/></worldbody></mujoco>"))
-          .find("MuJoCo rejected the scene"),
-      std::string::npos);
+  // MuJoCo's own message, on one line with the line it names
+  const std::string rejected = ErrorOf(
+      dir.Write("bad.xml", "<mujoco><worldbody>\n<geom type=\"nonsense\"/></worldbody></mujoco>"));
+  EXPECT_NE(rejected.find("bad.xml: MuJoCo rejected the scene: "), std::string::npos) << rejected;
+  EXPECT_NE(rejected.find("; Element 'geom', line 2"), std::string::npos) << rejected;
+  EXPECT_EQ(rejected.find('\n'), std::string::npos) << rejected;
   // (MuJoCo itself takes a negative time step)
   EXPECT_NE(ErrorOf(dir.Write("back.xml", "<mujoco><option timestep=\"-0.001\"/></mujoco>"))
                 .find("back.xml: the time step is -0.001 s (<option timestep>)"),
