@@ -62,14 +62,13 @@ class SceneParser {
     }
     // (an attribute written but blank is not an attribute left out: both
     // kinds of mistake, name="" and name=" ", would otherwise give defaults)
-    if (values.size() < std::max<size_t>(min_count, 1) || values.size() > max_count) {
-      Fail(element,
-           std::string(name) + " takes " + std::to_string(std::max<size_t>(min_count, 1)) +
-               (max_count > std::max<size_t>(min_count, 1) ? " to " + std::to_string(max_count)
-                                                           : "") +
-               (max_count == 1 ? " number" : " numbers") + ", got " +
-               std::to_string(values.size()) +
-               (values.empty() ? "; give a value or leave the attribute out" : ""));
+    const size_t least = std::max<size_t>(min_count, 1);
+    if (values.size() < least || values.size() > max_count) {
+      Fail(element, std::string(name) + " takes " + std::to_string(least) +
+                        (max_count > least ? " to " + std::to_string(max_count) : "") +
+                        (max_count == 1 ? " number" : " numbers") + ", got " +
+                        std::to_string(values.size()) +
+                        (values.empty() ? "; give a value or leave the attribute out" : ""));
     }
     return values;
   }
