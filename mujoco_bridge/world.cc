@@ -1,5 +1,6 @@
 #include "mujoco_bridge/world.h"
 
+#include <mujoco/mjxmacro.h>
 #include <mujoco/mujoco.h>
 
 #include <chrono>
@@ -10,6 +11,7 @@
 #include <fstream>
 #include <sstream>
 #include <string>
+#include <type_traits>
 
 #include "mesh/error.h"
 #include "mesh/generators.h"
@@ -235,6 +237,87 @@ std::string OneLine(const std::string& text) {
   return joined;
 }
 
+// The object a row of mjModel array `field` belongs to, for an error
+// message: "geom 'rim'" for row 3 of geom_pos, "" where the rows are not
+// objects (mesh vertices, say).
+std::string RowOwner(const mjModel* m, const char* field, const char* rows, long row) {
+  struct Kind {
+    const char* prefix;
+    const char* rows;
+    mjtObj type;
+    const char* noun;
+  };
+  static const Kind kinds[] = {
+      {"body_", "nbody", mjOBJ_BODY, "body"},
+      {"jnt_", "njnt", mjOBJ_JOINT, "joint"},
+      {"geom_", "ngeom", mjOBJ_GEOM, "geom"},
+      {"site_", "nsite", mjOBJ_SITE, "site"},
+      {"cam_", "ncam", mjOBJ_CAMERA, "camera"},
+      {"light_", "nlight", mjOBJ_LIGHT, "light"},
+      {"tendon_", "ntendon", mjOBJ_TENDON, "tendon"},
+      {"actuator_", "nu", mjOBJ_ACTUATOR, "actuator"},
+      {"sensor_", "nsensor", mjOBJ_SENSOR, "sensor"},
+      {"eq_", "neq", mjOBJ_EQUALITY, "equality"},
+      {"key_", "nkey", mjOBJ_KEY, "keyframe"},
+      {"mat_", "nmat", mjOBJ_MATERIAL, "material"},
+      {"pair_", "npair", mjOBJ_PAIR, "contact pair"},
+  };
+  for (const Kind& kind : kinds) {
+    if (std::strncmp(field, kind.prefix, std::strlen(kind.prefix)) != 0 ||
+        std::strcmp(rows, kind.rows) != 0) {
+      continue;
+    }
+    std::string owner = kind.noun;
+    if (const char* name = mj_id2name(m, kind.type, static_cast<int>(row))) {
+      owner.append(" '").append(name).append("'");
+    } else {
+      owner.append(" ").append(std::to_string(row));
+    }
+    return owner;
+  }
+  return "";
+}
+
+// Throws, naming the field and its object, if an array of the compiled
+// model holds a number that is not finite. MuJoCo 2.2.2 takes "nan" and
+// "inf" in a scene with a warning on the console only: a geom at NaN met
+// nothing and left NaN in the rollout's metrics, which reported ok.
+template <typename T>
+void CheckFinite(const mjModel* m, const char* field, const char* rows_name, const T* values,
+                 long rows, long cols, const std::string& scene_path) {
+  if constexpr (std::is_floating_point_v<T>) {
+    for (long i = 0; i < rows * cols; ++i) {
+      if (std::isfinite(values[i])) continue;
+      const std::string owner = RowOwner(m, field, rows_name, i / cols);
+      ThrowAt(scene_path, 0,
+              "MuJoCo's model has a number that is not finite (" + std::to_string(values[i]) +
+                  ") in " + field + (owner.empty() ? "" : " of " + owner) +
+                  "; check that element's numbers in the scene");
+    }
+  }
+}
+
+void CheckModelFinite(const mjModel* m, const std::string& scene_path) {
+  MJMODEL_POINTERS_PREAMBLE(m)
+#define X(type, name, rows, cols)                                                            \
+  CheckFinite(m, #name, #rows, m->name, static_cast<long>(m->rows), static_cast<long>(cols), \
+              scene_path);
+  MJMODEL_POINTERS
+#undef X
+  const mjOption& o = m->opt;
+  const mjtNum options[] = {o.timestep,    o.impratio,    o.tolerance,   o.gravity[0],
+                            o.gravity[1],  o.gravity[2],  o.wind[0],     o.wind[1],
+                            o.wind[2],     o.magnetic[0], o.magnetic[1], o.magnetic[2],
+                            o.density,     o.viscosity,   o.o_margin,    o.o_solref[0],
+                            o.o_solref[1], o.o_solimp[0], o.o_solimp[1], o.o_solimp[2]};
+  for (mjtNum value : options) {
+    if (!std::isfinite(value)) {
+      ThrowAt(scene_path, 0,
+              "MuJoCo's <option> has a number that is not finite; check its attributes");
+    }
+  }
+}
+
 }  // namespace
 
 struct World::Proxy {
@@ -338,6 +421,7 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
     ThrowAt(scene_path, 0, "MuJoCo rejected the scene: " + OneLine(message));
   }
   mjModel* m = world->model_;
+  CheckModelFinite(m, scene_path);
   if (options.timestep) m->opt.timestep = *options.timestep;
   // (MuJoCo takes any number: at -0.001 s a rollout "ran" backwards in time
   // and reported ok)

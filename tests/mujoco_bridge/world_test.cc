@@ -121,6 +121,18 @@ TEST(SceneLoading, BadScenesNameTheLine) {
   EXPECT_NE(rejected.find("bad.xml: MuJoCo rejected the scene: "), std::string::npos) << rejected;
   EXPECT_NE(rejected.find("; Element 'geom', line 2"), std::string::npos) << rejected;
   EXPECT_EQ(rejected.find('\n'), std::string::npos) << rejected;
+  // MuJoCo takes "nan" and "inf" with a console warning only (a static geom
+  // at NaN met nothing, and the rollout's metrics came out NaN)
+  EXPECT_NE(
+      ErrorOf(dir.Write("nan.xml",
+                        "<mujoco><worldbody>\n<geom name=\"rim\" type=\"box\" "
+                        "pos=\"1 nan 1\" size=\".1 .1 .1\"/></worldbody></mujoco>"))
+          .find("nan.xml: MuJoCo's model has a number that is not finite (nan) in geom_pos of "
+                "geom 'rim'"),
+      std::string::npos);
+  EXPECT_NE(ErrorOf(dir.Write("inf.xml", "<mujoco><option gravity=\"0 0 -inf\"/></mujoco>"))
+                .find("inf.xml: MuJoCo's <option> has a number that is not finite"),
+            std::string::npos);
   // (MuJoCo itself takes a negative time step)
   EXPECT_NE(ErrorOf(dir.Write("back.xml", "<mujoco><option timestep=\"-0.001\"/></mujoco>"))
                 .find("back.xml: the time step is -0.001 s (<option timestep>)"),
