@@ -50,7 +50,7 @@ NAMES = [
     "quat", "scale", "vel", "shape", "file", "name", "body", "geom", "tetbody", "vertices", "box",
     "sphere", "stiffness", "method", "friction", "substeps", "tolerance", "maxiter", "bogus",
 ]
-STEPS = 5
+STEPS = 30
 TIMEOUT_S = 300
 
 
