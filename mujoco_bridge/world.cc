@@ -12,6 +12,7 @@
 #include <sstream>
 #include <string>
 #include <type_traits>
+#include <vector>
 
 #include "mesh/error.h"
 #include "mesh/generators.h"
@@ -305,11 +306,13 @@ void CheckModelFinite(const mjModel* m, const std::string& scene_path) {
   MJMODEL_POINTERS
 #undef X
   const mjOption& o = m->opt;
-  const mjtNum options[] = {o.timestep,    o.impratio,    o.tolerance,   o.gravity[0],
-                            o.gravity[1],  o.gravity[2],  o.wind[0],     o.wind[1],
-                            o.wind[2],     o.magnetic[0], o.magnetic[1], o.magnetic[2],
-                            o.density,     o.viscosity,   o.o_margin,    o.o_solref[0],
-                            o.o_solref[1], o.o_solimp[0], o.o_solimp[1], o.o_solimp[2]};
+  std::vector<mjtNum> options = {o.timestep, o.impratio,  o.tolerance,
+                                 o.density,  o.viscosity, o.o_margin};
+  options.insert(options.end(), o.gravity, o.gravity + 3);
+  options.insert(options.end(), o.wind, o.wind + 3);
+  options.insert(options.end(), o.magnetic, o.magnetic + 3);
+  options.insert(options.end(), o.o_solref, o.o_solref + mjNREF);
+  options.insert(options.end(), o.o_solimp, o.o_solimp + mjNIMP);
   for (mjtNum value : options) {
     if (!std::isfinite(value)) {
       ThrowAt(scene_path, 0,
