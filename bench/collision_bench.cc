@@ -133,8 +133,8 @@ void Report(benchmark::State& state, double total, const double stages[kStages],
 // moving scene, the next step's. (One configuration solved again and again
 // lets the core's branch predictor learn a small scene's branches by heart:
 // 120 paper spheres took 0.72 us a point so, against 0.96 moving, fastest
-// of 6 runs; in a rollout, where the deformable step runs between solves,
-// the solver takes 2.4: see docs/performance.md.)
+// of 6 runs; in a rollout, where the rest of the step runs between solves,
+// the solver takes 2.4 to 2.9: see docs/performance.md.)
 void Run(benchmark::State& state, Scene& scene) {
   PenetrationOptions options;
   options.method = state.range(1) == 0 ? DepthMethod::kConsistent : DepthMethod::kClosest;

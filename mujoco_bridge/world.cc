@@ -12,7 +12,6 @@
 #include <sstream>
 #include <string>
 #include <type_traits>
-#include <vector>
 
 #include "mesh/error.h"
 #include "mesh/generators.h"
@@ -305,20 +304,27 @@ void CheckModelFinite(const mjModel* m, const std::string& scene_path) {
               scene_path);
   MJMODEL_POINTERS
 #undef X
+  // <option>'s numbers (its timestep has its own check in World::Load,
+  // after --timestep)
   const mjOption& o = m->opt;
-  std::vector<mjtNum> options = {o.timestep, o.impratio,  o.tolerance,
-                                 o.density,  o.viscosity, o.o_margin};
-  options.insert(options.end(), o.gravity, o.gravity + 3);
-  options.insert(options.end(), o.wind, o.wind + 3);
-  options.insert(options.end(), o.magnetic, o.magnetic + 3);
-  options.insert(options.end(), o.o_solref, o.o_solref + mjNREF);
-  options.insert(options.end(), o.o_solimp, o.o_solimp + mjNIMP);
-  for (mjtNum value : options) {
-    if (!std::isfinite(value)) {
+  auto check_option = [&](const char* attribute, const mjtNum* values, int count) {
+    for (int i = 0; i < count; ++i) {
+      if (std::isfinite(values[i])) continue;
       ThrowAt(scene_path, 0,
-              "MuJoCo's <option> has a number that is not finite; check its attributes");
+              std::string("MuJoCo's <option> has a number that is not finite in ") + attribute +
+                  "; check its attributes");
     }
-  }
+  };
+  check_option("impratio", &o.impratio, 1);
+  check_option("tolerance", &o.tolerance, 1);
+  check_option("density", &o.density, 1);
+  check_option("viscosity", &o.viscosity, 1);
+  check_option("gravity", o.gravity, 3);
+  check_option("wind", o.wind, 3);
+  check_option("magnetic", o.magnetic, 3);
+  check_option("o_margin", &o.o_margin, 1);
+  check_option("o_solref", o.o_solref, mjNREF);
+  check_option("o_solimp", o.o_solimp, mjNIMP);
 }
 
 }  // namespace
