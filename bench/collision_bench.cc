@@ -369,6 +369,27 @@ BENCHMARK(BM_BallOnSlab)
     ->Unit(benchmark::kMicrosecond)
     ->UseRealTime();
 
+// The same with the slab fixed (CollisionObject::fixed, as the bridge
+// marks a proxy of MuJoCo's world body): the solver keeps the slab's box
+// and a tree over its chunks, and a solve should cost about the same
+// whatever the slab's size.
+void BM_BallOnFixedSlab(benchmark::State& state) {
+  Scene scene;
+  const int cells = static_cast<int>(state.range(0));
+  scene.Add(scene.Mesh("box:size=1,1,0.05:res=" + std::to_string(cells) + "," +
+                       std::to_string(cells) + ",2"),
+            Eigen::Vector3d::Zero());
+  scene.objects.back().rigid = true;
+  scene.objects.back().fixed = true;
+  scene.Add(scene.Mesh("sphere:size=0.02:res=2"), Eigen::Vector3d(0.0, 0.0, 0.065));
+  Run(state, scene);
+}
+BENCHMARK(BM_BallOnFixedSlab)
+    ->ArgsProduct({{25, 50, 100, 200}, {0}, {1}})
+    ->ArgNames({"cells", "closest", "threads"})
+    ->Unit(benchmark::kMicrosecond)
+    ->UseRealTime();
+
 }  // namespace
 }  // namespace tetcosim
 

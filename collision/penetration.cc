@@ -87,6 +87,9 @@ constexpr int kMinTreeQueries = 2;
 // through a box tree when an object has more than this many, else by
 // testing each (a coarse floor mesh under fine bodies has thousands).
 constexpr int kMaxLargeListed = 16;
+// Stage 1's hits are sorted by comparison, not counted vertex by vertex,
+// when there are more than this many vertices per hit.
+constexpr int kMinVerticesPerCountedHit = 32;
 
 // Whether stage 1 tests the vertices of object a against the tetrahedra of
 // object b (a vertex in b's search box may be of any object).
@@ -273,6 +276,77 @@ long CellCount(const Eigen::Vector3i& lo, const Eigen::Vector3i& hi) {
 
 }  // namespace
 
+// The box of an object's positions (no margin); false if a position is
+// infinite or NaN. (Row by row, in one pass: Eigen's column-wise reduction
+// of a row-major matrix walks each column on its own, six passes.)
+bool RawBounds(const Positions& x, Eigen::Vector3d& lo, Eigen::Vector3d& hi) {
+  Eigen::Vector3d box_lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+  Eigen::Vector3d box_hi = -box_lo;
+  // the bits of p - p, or-ed: +0 (no bit set) for finite coordinates, NaN's
+  // for infinite or NaN ones (summing p - p instead, a chain of adds, made
+  // the hash stage slower: 5.8 against 5.0 us on the 70% cubes)
+  std::uint64_t non_finite = 0;
+  for (int v = 0; v < x.rows(); ++v) {
+    const Eigen::Vector3d p = x.row(v).transpose();
+    box_lo = box_lo.cwiseMin(p);
+    box_hi = box_hi.cwiseMax(p);
+    non_finite |= std::bit_cast<std::uint64_t>(p.x() - p.x()) |
+                  std::bit_cast<std::uint64_t>(p.y() - p.y()) |
+                  std::bit_cast<std::uint64_t>(p.z() - p.z());
+  }
+  lo = box_lo;
+  hi = box_hi;
+  return non_finite == 0;
+}
+
+static_assert(std::endian::native == std::endian::little);  // (bytes of a word, below)
+
+// Bit 8 i + 7 set just when byte i (in memory order) of the word is zero.
+std::uint64_t ZeroByteMask(std::uint64_t word) {
+  constexpr std::uint64_t kLow7 = 0x7F7F7F7F7F7F7F7F;
+  // (a byte's low seven bits plus 0x7F carry into its high bit unless all
+  // zero; or-ed with the byte's own high bit: set unless the byte is zero)
+  return ~(((word & kLow7) + kLow7) | word | kLow7);
+}
+
+// The number of zero bytes in [begin, end), eight at a time.
+int CountZeroBytes(const std::uint8_t* bytes, int begin, int end) {
+  int count = 0;
+  int i = begin;
+  for (; i + 8 <= end; i += 8) {
+    std::uint64_t word;
+    std::memcpy(&word, bytes + i, sizeof(word));
+    count += std::popcount(ZeroByteMask(word));
+  }
+  for (; i < end; ++i) count += bytes[i] == 0;
+  return count;
+}
+
+// visit(i) for every i in [begin, end) with bytes[i] == 0, in increasing
+// order, passing over eight non-zero bytes at a time (the outcodes of
+// vertices outside every search box, most of a large body's)
+template <typename Visit>
+void ForEachZeroByte(const std::uint8_t* bytes, int begin, int end, Visit&& visit) {
+  int i = begin;
+  for (; i + 8 <= end; i += 8) {
+    std::uint64_t word;
+    std::memcpy(&word, bytes + i, sizeof(word));
+    for (std::uint64_t zero = ZeroByteMask(word); zero != 0; zero &= zero - 1) {
+      visit(i + std::countr_zero(zero) / 8);
+    }
+  }
+  for (; i < end; ++i) {
+    if (bytes[i] == 0) visit(i);
+  }
+}
+
+// A fixed object's vertices beyond every side of its search box: those of
+// the chunks that stage 1 passes over (geometrically impossible, and so
+// never taken for a real outcode)
+constexpr std::uint8_t kBeyondEverySide = 0x3F;
+// a fixed object's vertices compared every solve (CollisionObject::fixed)
+constexpr int kFixedSamples = 16;
+
 const char* DepthMethodName(DepthMethod method) {
   return method == DepthMethod::kConsistent ? "consistent" : "closest";
 }
@@ -316,7 +390,8 @@ Eigen::Vector3d PenetrationSolver::Position(int global_vertex) const {
 }
 
 int PenetrationSolver::FindHit(int vertex, int penetrated) const {
-  for (int h = hit_offset_[vertex]; h < hit_offset_[vertex + 1]; ++h) {
+  const auto [begin, end] = hit_range_[vertex];
+  for (int h = begin; h < end; ++h) {
     if (hits_[h].penetrated == penetrated) return h;
   }
   return -1;
@@ -390,10 +465,13 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
   for (int o = 0; o < num_objects; ++o) {
     chunk_offset_[o + 1] = chunk_offset_[o] + objects[o].mesh->num_spatial_runs();
   }
-  vertex_object_.resize(num_vertices);
-  for (int o = 0; o < num_objects; ++o) {
-    std::fill(vertex_object_.begin() + vertex_offset_[o],
-              vertex_object_.begin() + vertex_offset_[o + 1], o);
+  if (vertex_offset_ != object_of_offset_) {  // (the same objects: already filled)
+    vertex_object_.resize(num_vertices);
+    for (int o = 0; o < num_objects; ++o) {
+      std::fill(vertex_object_.begin() + vertex_offset_[o],
+                vertex_object_.begin() + vertex_offset_[o + 1], o);
+    }
+    object_of_offset_ = vertex_offset_;
   }
   length_scale_ = edge_count > 0 ? edge_sum / static_cast<double>(edge_count) : 1.0;
   cell_size_ = options_.cell_size > 0.0 ? options_.cell_size : length_scale_;
@@ -406,26 +484,24 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
   object_hi_.resize(num_objects);
   Eigen::Vector3d mean = Eigen::Vector3d::Zero();  // (of the boxes' centres, left out aside)
   int num_in = 0;
+  fixed_.resize(num_objects);
+  any_fixed_ = false;
   for (int o = 0; o < num_objects; ++o) {
-    // (row by row, in one pass: Eigen's column-wise reduction of a
-    // row-major matrix walks each column on its own, six passes)
-    const Positions& x = *objects[o].positions;
-    Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
-    Eigen::Vector3d hi = -lo;
-    // the bits of p - p, or-ed: +0 (no bit set) for finite coordinates,
-    // NaN's for infinite or NaN ones (summing p - p instead, a chain of
-    // adds, made the hash stage slower: 5.8 against 5.0 us on the 70%
-    // cubes)
-    std::uint64_t non_finite = 0;
-    for (int v = 0; v < x.rows(); ++v) {
-      const Eigen::Vector3d p = x.row(v).transpose();
-      lo = lo.cwiseMin(p);
-      hi = hi.cwiseMax(p);
-      non_finite |= std::bit_cast<std::uint64_t>(p.x() - p.x()) |
-                    std::bit_cast<std::uint64_t>(p.y() - p.y()) |
-                    std::bit_cast<std::uint64_t>(p.z() - p.z());
+    FixedObject& fixed = fixed_[o];
+    fixed.active = objects[o].fixed && KeepFixed(objects[o], fixed);
+    if (!objects[o].fixed) fixed.mesh = nullptr;  // (seen moving: keep nothing)
+    any_fixed_ |= fixed.active;
+    stats_.fixed_objects += fixed.active;
+    Eigen::Vector3d lo, hi;
+    bool finite;
+    if (fixed.active) {
+      lo = fixed.lo;
+      hi = fixed.hi;
+      finite = fixed.finite;
+    } else {
+      finite = RawBounds(*objects[o].positions, lo, hi);
     }
-    if (non_finite != 0) {
+    if (!finite) {
       // left out: an empty box meets no other, and sorts last
       ++stats_.non_finite_objects;
       lo.setConstant(std::numeric_limits<double>::infinity());
@@ -515,6 +591,99 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
     search_lo_[b] = search_lo_[b].cwiseMin(partner.lo);
     search_hi_[b] = search_hi_[b].cwiseMax(partner.hi);
   }
+  if (!any_fixed_) return;
+  // a fixed object's chunks that stage 1 searches: those whose box meets
+  // its search box, found in its tree. (Exactly those that it would search
+  // without the tree: a chunk's vertices all lie beyond one side of the
+  // search box just when the chunk's box does not meet it.)
+  search_chunks_.clear();
+  for (int o = 0; o < num_objects; ++o) {
+    FixedObject& fixed = fixed_[o];
+    if (!fixed.active) {
+      for (int c = chunk_offset_[o]; c < chunk_offset_[o + 1]; ++c) search_chunks_.push_back(c);
+      continue;
+    }
+    fixed.searched.clear();
+    fixed.runs.Overlapping(search_lo_[o], search_hi_[o],
+                           [&](int run) { fixed.searched.push_back(run); });
+    std::sort(fixed.searched.begin(), fixed.searched.end());
+    for (int run : fixed.searched) search_chunks_.push_back(chunk_offset_[o] + run);
+  }
+}
+
+bool PenetrationSolver::KeepFixed(const CollisionObject& object, FixedObject& fixed) {
+  const TetMesh& mesh = *object.mesh;
+  const Positions& x = *object.positions;
+  const int num_vertices = mesh.num_vertices();
+  auto position = [&](int v) { return Eigen::Vector3d(x.row(v).transpose()); };
+  if (fixed.mesh == object.mesh && fixed.positions == object.positions) {
+    bool still = true;
+    for (size_t i = 0; i < fixed.sample_vertex.size(); ++i) {
+      const Eigen::Vector3d p = position(fixed.sample_vertex[i]);
+      still &= std::memcmp(p.data(), fixed.sample[i].data(), sizeof(double) * 3) == 0;
+      fixed.sample[i] = p;
+    }
+    if (!still) {
+      fixed.kept = false;
+      return false;
+    }
+    if (fixed.kept) return true;
+  } else {
+    fixed.mesh = object.mesh;
+    fixed.positions = object.positions;
+    const int num_samples = std::min(kFixedSamples, num_vertices);
+    fixed.sample_vertex.resize(num_samples);
+    fixed.sample.resize(num_samples);
+    for (int i = 0; i < num_samples; ++i) {
+      // spread over the numbering, the last vertex among them
+      fixed.sample_vertex[i] =
+          static_cast<int>(static_cast<long>(num_vertices - 1) * (i + 1) / num_samples);
+      fixed.sample[i] = position(fixed.sample_vertex[i]);
+    }
+  }
+  // keep it
+  fixed.kept = true;
+  fixed.finite = RawBounds(x, fixed.lo, fixed.hi);
+  const int num_runs = mesh.num_spatial_runs();
+  const std::vector<int>& run_vertices = mesh.spatial_run_vertices();
+  const std::vector<int>& run_offsets = mesh.spatial_run_vertex_offsets();
+  fixed.run_lo.resize(num_runs);
+  fixed.run_hi.resize(num_runs);
+  std::vector<char> in_run(num_vertices, 0);
+  for (int r = 0; r < num_runs; ++r) {
+    Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+    Eigen::Vector3d hi = -lo;
+    for (int i = run_offsets[r]; i < run_offsets[r + 1]; ++i) {
+      lo = lo.cwiseMin(position(run_vertices[i]));
+      hi = hi.cwiseMax(position(run_vertices[i]));
+      in_run[run_vertices[i]] = 1;
+    }
+    fixed.run_lo[r] = lo;
+    fixed.run_hi[r] = hi;
+  }
+  // (a non-finite object is left out of the solve: no chunk to search)
+  fixed.runs.Build(fixed.finite ? std::span<const Eigen::Vector3d>(fixed.run_lo)
+                                : std::span<const Eigen::Vector3d>(),
+                   fixed.finite ? std::span<const Eigen::Vector3d>(fixed.run_hi)
+                                : std::span<const Eigen::Vector3d>());
+  fixed.loose_vertices.clear();
+  for (int v = 0; v < num_vertices; ++v) {
+    if (!in_run[v]) fixed.loose_vertices.push_back(v);
+  }
+  // each surface face in the chunk of its tet (the last chunk also takes
+  // the remainder of the spatial order)
+  std::vector<int> tet_run(mesh.num_tets());
+  for (int n = 0; n < mesh.num_tets(); ++n) {
+    tet_run[mesh.spatial_tet_order()[n]] = std::min(n / kChunkTets, num_runs - 1);
+  }
+  const int num_faces = static_cast<int>(mesh.surface().rows());
+  fixed.run_face_offset.assign(num_runs + 1, 0);
+  for (int f = 0; f < num_faces; ++f) ++fixed.run_face_offset[tet_run[mesh.surface_tet()[f]] + 1];
+  for (int r = 0; r < num_runs; ++r) fixed.run_face_offset[r + 1] += fixed.run_face_offset[r];
+  fixed.run_faces.resize(num_faces);
+  std::vector<int> next(fixed.run_face_offset.begin(), fixed.run_face_offset.end() - 1);
+  for (int f = 0; f < num_faces; ++f) fixed.run_faces[next[tet_run[mesh.surface_tet()[f]]]++] = f;
+  return true;
 }
 
 // stage 1: every vertex inside a tetrahedron of another object
@@ -528,6 +697,7 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
   ParallelFor(ThreadsFor(num_threads, num_blocks, 4), 0, num_blocks, [&](int block) {
     ClassifyVertices(block * kVertexBlock, std::min(num_vertices, (block + 1) * kVertexBlock));
   });
+  ClassifyFixedVertices();
   BuildVertexHash(num_threads);
   timings_.hash += SecondsSince(start);
 
@@ -536,7 +706,7 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
   const int num_searched = hash_.num_items() > 0 ? num_chunks : 0;
   ParallelFor(
       ThreadsFor(num_threads, num_searched, kMinChunksPerThread), 0, num_searched,
-      [&](int chunk) { SearchChunk(objects, chunk); }, Schedule::kDynamic, kChunksPerGrab);
+      [&](int i) { SearchChunk(objects, SearchedChunk(i)); }, Schedule::kDynamic, kChunksPerGrab);
   SearchLargeTets(objects);
   MergeHits();
   timings_.inside += SecondsSince(start);
@@ -557,6 +727,7 @@ void PenetrationSolver::FindCollidingPointsAndHashSurfaces(std::span<const Colli
   surface_list_.assign(partnered_.begin(), partnered_.end());
   const int num_surfaces = static_cast<int>(surface_list_.size());
   BeginVertexHash();
+  ClassifyFixedVertices();  // (before the surfaces, which read the outcodes)
   PlaceSurfaces(objects, /*full=*/false);
   const int num_chunks = BeginSearch(objects, threads);
   std::atomic<bool> hash_built = false;
@@ -583,7 +754,7 @@ void PenetrationSolver::FindCollidingPointsAndHashSurfaces(std::span<const Colli
     while (!hash_built.load(std::memory_order_acquire)) std::this_thread::yield();
     const int num_searched = hash_.num_items() > 0 ? num_chunks : 0;
 #pragma omp for schedule(dynamic, kChunksPerGrab) nowait
-    for (int chunk = 0; chunk < num_searched; ++chunk) SearchChunk(objects, chunk);
+    for (int i = 0; i < num_searched; ++i) SearchChunk(objects, SearchedChunk(i));
   }
   SearchLargeTets(objects);
   MergeHits();
@@ -606,6 +777,10 @@ void PenetrationSolver::ClassifyVertices(int begin, int end) {
     const int o = vertex_object_[g];
     const int offset = vertex_offset_[o];
     const int stop = std::min(end, vertex_offset_[o + 1]);
+    if (fixed_[o].active) {  // (ClassifyFixedVertices)
+      g = stop;
+      continue;
+    }
     const Positions& x = *positions_[o];
     const Eigen::Vector3d lo = search_lo_[o], hi = search_hi_[o];
     std::uint8_t* outcode = vertex_outcode_.data() + offset;
@@ -616,6 +791,33 @@ void PenetrationSolver::ClassifyVertices(int begin, int end) {
       if (outcode[v] == 0) cell[v] = Cell(p);
     }
     g = stop;
+  }
+}
+
+void PenetrationSolver::ClassifyFixedVertices() {
+  if (!any_fixed_) return;
+  const int num_objects = static_cast<int>(fixed_.size());
+  for (int o = 0; o < num_objects; ++o) {
+    const FixedObject& fixed = fixed_[o];
+    if (!fixed.active) continue;
+    const int offset = vertex_offset_[o];
+    std::uint8_t* outcode = vertex_outcode_.data() + offset;
+    Eigen::Vector3i* cell = vertex_cell_.data() + offset;
+    std::fill(outcode, outcode + (vertex_offset_[o + 1] - offset), kBeyondEverySide);
+    const Positions& x = *positions_[o];
+    const Eigen::Vector3d lo = search_lo_[o], hi = search_hi_[o];
+    auto classify = [&](int v) {
+      const Eigen::Vector3d p = x.row(v).transpose();
+      outcode[v] = Outcode(p, lo, hi);
+      if (outcode[v] == 0) cell[v] = Cell(p);
+    };
+    // (a vertex shared by several chunks is classified again, alike)
+    const std::vector<int>& run_vertices = fixed.mesh->spatial_run_vertices();
+    const std::vector<int>& run_offsets = fixed.mesh->spatial_run_vertex_offsets();
+    for (int run : fixed.searched) {
+      for (int i = run_offsets[run]; i < run_offsets[run + 1]; ++i) classify(run_vertices[i]);
+    }
+    for (int v : fixed.loose_vertices) classify(v);
   }
 }
 
@@ -641,9 +843,8 @@ void PenetrationSolver::BuildVertexHash(int num_threads) {
   block_insertion_.resize(num_blocks + 1);
   block_insertion_[0] = 0;
   ParallelFor(threads, 0, num_blocks, [&](int block) {
-    int hashed = 0;
-    for (int g = block * kVertexBlock; g < block_end(block); ++g) hashed += vertex_outcode_[g] == 0;
-    block_insertion_[block + 1] = hashed * per_vertex;
+    block_insertion_[block + 1] =
+        CountZeroBytes(vertex_outcode_.data(), block * kVertexBlock, block_end(block)) * per_vertex;
   });
   for (int block = 0; block < num_blocks; ++block) {
     block_insertion_[block + 1] += block_insertion_[block];
@@ -653,11 +854,10 @@ void PenetrationSolver::BuildVertexHash(int num_threads) {
   hash_.ResizeInsertions(num_insertions);
   ParallelFor(threads, 0, num_blocks, [&](int block) {
     int i = block_insertion_[block];
-    for (int g = block * kVertexBlock; g < block_end(block); ++g) {
-      if (vertex_outcode_[g] != 0) continue;
+    ForEachZeroByte(vertex_outcode_.data(), block * kVertexBlock, block_end(block), [&](int g) {
       if (keyed) hash_.SetInsertion(i++, vertex_cell_[g], g, vertex_object_[g] + 1);
       if (unkeyed) hash_.SetInsertion(i++, vertex_cell_[g], g);
-    }
+    });
   });
   hash_.BuildInsertions(threads);
   // what the tetrahedra test, in the hash's bucket order
@@ -687,7 +887,8 @@ int PenetrationSolver::BeginSearch(std::span<const CollisionObject> objects, int
     scratch.hits.clear();
     scratch.large_tets.clear();
   }
-  return any_deformable ? chunk_offset_[num_objects] : 0;
+  if (!any_deformable) return 0;
+  return any_fixed_ ? static_cast<int>(search_chunks_.size()) : chunk_offset_[num_objects];
 }
 
 // pass 2 of stage 1: the tetrahedra, in chunks of kChunkTets consecutive
@@ -940,46 +1141,71 @@ void PenetrationSolver::BuildCoarseVertexHash(int num_threads) {
   });
 }
 
-// the hits of every thread, grouped by vertex (a counting sort), each
-// vertex's hits in (penetrated, tet) order: the order, and so the result,
-// does not depend on threads (sorting all hits by comparison was serial and
-// took 1.5% of the 100k scene's solve)
+// the hits of every thread, in (vertex, penetrated, tet) order, so that
+// the order, and so the result, does not depend on threads: grouped by
+// vertex with a counting sort, each vertex's few sorted (sorting all hits
+// by comparison was serial and took 1.5% of the 100k scene's solve), or
+// all sorted when they are few among many vertices (a small body on a
+// large fixed one, where counting passes over every vertex); then one
+// tetrahedron kept per (vertex, object): the one the vertex is deepest in
+// (a vertex on a shared face or edge is inside several), and each vertex's
+// range of kept hits
 void PenetrationSolver::MergeHits() {
   const int num_vertices = vertex_offset_.back();
-  hit_offset_.assign(num_vertices + 1, 0);
+  // (the last solve's hits leave the index; all of it when the vertices
+  // are others)
+  if (static_cast<int>(hit_range_.size()) != num_vertices) {
+    hit_range_.assign(num_vertices, {0, 0});
+  } else {
+    for (const Hit& hit : hits_) hit_range_[hit.vertex] = {0, 0};
+  }
+  int num_found = 0;
   for (const ThreadScratch& scratch : thread_scratch_) {
-    for (const Hit& hit : scratch.hits) ++hit_offset_[hit.vertex + 1];
+    num_found += static_cast<int>(scratch.hits.size());
   }
-  for (int g = 0, sum = 0; g <= num_vertices; ++g) {  // (the sum in a register)
-    sum += hit_offset_[g];
-    hit_offset_[g] = sum;
-  }
-  hits_.resize(hit_offset_[num_vertices]);
-  for (const ThreadScratch& scratch : thread_scratch_) {
-    for (const Hit& hit : scratch.hits) hits_[hit_offset_[hit.vertex]++] = hit;
-  }
-  // (hit_offset_[g] is now the end of vertex g's hits.) Vertex by vertex,
-  // its hits sorted, and one tetrahedron kept per (vertex, object): the one
-  // the vertex is deepest in (a vertex on a shared face or edge is inside
-  // several); the kept hits move down in place
-  int kept = 0;
-  for (int g = 0, begin = 0; g < num_vertices; ++g) {
-    const int end = hit_offset_[g];
-    hit_offset_[g] = kept;
-    if (end - begin > 1) std::sort(hits_.begin() + begin, hits_.begin() + end);
-    for (int i = begin; i < end;) {
-      int j = i;
-      int best = i;
-      while (j < end && hits_[j].penetrated == hits_[i].penetrated) {
-        if (hits_[j].barycentric.minCoeff() > hits_[best].barycentric.minCoeff()) best = j;
-        ++j;
-      }
-      hits_[kept++] = hits_[best];
+  hits_.resize(num_found);
+  if (static_cast<long>(num_found) * kMinVerticesPerCountedHit < num_vertices) {
+    int i = 0;
+    for (const ThreadScratch& scratch : thread_scratch_) {
+      for (const Hit& hit : scratch.hits) hits_[i++] = hit;
+    }
+    std::sort(hits_.begin(), hits_.end());
+  } else {
+    hit_place_.assign(num_vertices + 1, 0);
+    for (const ThreadScratch& scratch : thread_scratch_) {
+      for (const Hit& hit : scratch.hits) ++hit_place_[hit.vertex + 1];
+    }
+    for (int g = 0, sum = 0; g <= num_vertices; ++g) {  // (the sum in a register)
+      sum += hit_place_[g];
+      hit_place_[g] = sum;
+    }
+    for (const ThreadScratch& scratch : thread_scratch_) {
+      for (const Hit& hit : scratch.hits) hits_[hit_place_[hit.vertex]++] = hit;
+    }
+    for (int i = 0; i < num_found;) {
+      int j = i + 1;
+      while (j < num_found && hits_[j].vertex == hits_[i].vertex) ++j;
+      if (j - i > 1) std::sort(hits_.begin() + i, hits_.begin() + j);
       i = j;
     }
-    begin = end;
   }
-  hit_offset_[num_vertices] = kept;
+  // (the kept hits move down in place)
+  int kept = 0;
+  for (int i = 0; i < num_found;) {
+    const Hit& first = hits_[i];
+    int j = i;
+    int best = i;
+    while (j < num_found && hits_[j].vertex == first.vertex &&
+           hits_[j].penetrated == first.penetrated) {
+      if (hits_[j].barycentric.minCoeff() > hits_[best].barycentric.minCoeff()) best = j;
+      ++j;
+    }
+    std::array<int, 2>& range = hit_range_[hits_[best].vertex];
+    if (range[1] == 0) range[0] = kept;  // (its first)
+    hits_[kept++] = hits_[best];
+    range[1] = kept;
+    i = j;
+  }
   hits_.resize(kept);
 }
 
@@ -1059,12 +1285,29 @@ void PenetrationSolver::HashSurface(std::span<const CollisionObject> objects, in
   const Positions& x = *objects[o].positions;
   const int num_faces = static_cast<int>(mesh.surface().rows());
   std::vector<int>& faces = thread_scratch_[thread].faces;
-  faces.resize(num_faces);
   int num_in_play = 0;
   if (object_fully_hashed_[o]) {
+    faces.resize(num_faces);
     std::iota(faces.begin(), faces.end(), 0);
     num_in_play = num_faces;
+  } else if (fixed_[o].active) {
+    // among the faces of the searched chunks (a face in play meets the
+    // search box, and so does the box of its tet's chunk), in order
+    const FixedObject& fixed = fixed_[o];
+    faces.clear();
+    for (int run : fixed.searched) {
+      faces.insert(faces.end(), fixed.run_faces.begin() + fixed.run_face_offset[run],
+                   fixed.run_faces.begin() + fixed.run_face_offset[run + 1]);
+    }
+    std::sort(faces.begin(), faces.end());
+    const std::uint8_t* outcode = vertex_outcode_.data() + vertex_offset_[o];
+    const int* corner = mesh.surface().data();
+    for (int i = 0; i < static_cast<int>(faces.size()); ++i) {
+      faces[num_in_play] = faces[i];
+      num_in_play += CornersInBox(outcode, corner + 3 * faces[i]);
+    }
   } else {
+    faces.resize(num_faces);
     // (TriangleInRegion's test, written for every face: branch-free)
     const std::uint8_t* outcode = vertex_outcode_.data() + vertex_offset_[o];
     const int* corner = mesh.surface().data();

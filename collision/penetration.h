@@ -63,6 +63,16 @@ struct CollisionObject {
   const Positions* positions = nullptr;
   bool rigid = false;           // rigid objects never collide with each other
   bool self_collision = false;  // test the object's vertices against its own tets
+  // The positions are those of the previous Solve() of this solver (same
+  // object index, mesh and positions storage): a body that does not move,
+  // such as a geom of MuJoCo's world body. The solver then keeps the
+  // object's box and a tree over its chunks of tetrahedra from one solve to
+  // the next, and passes over only the chunks and faces near its partners,
+  // so that a large fixed body costs a solve about what its contacts cost.
+  // Results are the same as without the flag. (A few vertices are compared
+  // with the kept copy every solve: if they moved, the object is taken as
+  // not fixed for that solve.)
+  bool fixed = false;
 };
 
 struct PenetrationResult {
@@ -113,6 +123,9 @@ struct PenetrationStats {
   // caller's state has diverged; the rest of the scene is solved as if
   // they were not there)
   int non_finite_objects = 0;
+  // objects solved with what the solver kept of them (CollisionObject::fixed,
+  // and they had not moved)
+  int fixed_objects = 0;
   double max_depth = 0.0;
   double mean_depth = 0.0;
 };
@@ -230,6 +243,30 @@ class PenetrationSolver {
                                   // for the next layer (the first: listed in stage 2)
   };
 
+  // What the solver keeps of a fixed object (CollisionObject::fixed)
+  // between solves, and what a solve found in it: its box, a tree over its
+  // chunks' boxes (a chunk's box: that of its tets' corners), and per chunk
+  // its surface faces (the faces of its tets, ascending).
+  struct FixedObject {
+    const TetMesh* mesh = nullptr;  // the object seen last (null: none)
+    const Positions* positions = nullptr;
+    std::vector<int> sample_vertex;               // compared every solve
+    std::vector<Eigen::Vector3d> sample;          // their positions when last seen
+    bool kept = false;                            // what follows is of those positions
+    Eigen::Vector3d lo, hi;                       // box, before Inflate
+    bool finite = true;                           // every position is finite
+    std::vector<Eigen::Vector3d> run_lo, run_hi;  // per chunk
+    BoxTree runs;                                 // over the chunks' boxes
+    std::vector<int> run_face_offset, run_faces;  // per chunk its surface faces
+    std::vector<int> loose_vertices;  // in no tet (TetMeshOptions::drop_unreferenced off)
+    bool active = false;              // this solve: fixed, and kept
+    std::vector<int> searched;        // this solve: chunks whose box meets the search box
+  };
+  // Whether a fixed object can use what is kept of it this solve: it can
+  // unless some of its sampled vertices moved since the last solve (then it
+  // is solved as not fixed, and kept again once it stays still); keeps it
+  // if it is not kept yet.
+  static bool KeepFixed(const CollisionObject& object, FixedObject& fixed);
   void Prepare(std::span<const CollisionObject> objects);
   void FindCollidingPoints(std::span<const CollisionObject> objects);
   void FindCollidingPointsAndHashSurfaces(std::span<const CollisionObject> objects, int threads);
@@ -238,7 +275,10 @@ class PenetrationSolver {
   // rigid; a chunk at a time) and
   // the merge of the threads' hits
   void BeginVertexHash();
-  void ClassifyVertices(int begin_vertex, int end_vertex);  // (global numbers)
+  void ClassifyVertices(int begin_vertex, int end_vertex);  // (global numbers; not fixed objects')
+  // fixed objects' vertices: only those of the searched chunks (and loose
+  // ones) get their outcode and cell; the others are beyond every side
+  void ClassifyFixedVertices();
   void BuildVertexHash(int num_threads);
   int BeginSearch(std::span<const CollisionObject> objects, int num_threads);
   void SearchChunk(std::span<const CollisionObject> objects, int chunk);
@@ -292,6 +332,8 @@ class PenetrationSolver {
   void ComputeClosest(std::span<const CollisionObject> objects, bool all);
   void CollectResults(std::span<const CollisionObject> objects);
 
+  // the chunk of stage 1's i-th search
+  int SearchedChunk(int i) const { return any_fixed_ ? search_chunks_[i] : i; }
   int FindHit(int vertex, int penetrated) const;
   Eigen::Vector3d Position(int global_vertex) const;
   // nearest point of B's surface to p (excluding triangles at vertex
@@ -308,8 +350,9 @@ class PenetrationSolver {
   Eigen::Vector3i Cell(const Eigen::Vector3d& p) const { return GridCell(p, inverse_cell_size_); }
 
   // per object, fixed while the object set does not change
-  std::vector<int> vertex_offset_;  // #objects + 1: global vertex index of each object's first
-  std::vector<int> vertex_object_;  // #global vertices
+  std::vector<int> vertex_offset_;     // #objects + 1: global vertex index of each object's first
+  std::vector<int> vertex_object_;     // #global vertices
+  std::vector<int> object_of_offset_;  // the vertex_offset_ that vertex_object_ was filled for
   std::vector<const Positions*> positions_;
   std::vector<Positions> normals_;  // #objects: current vertex normals (those stage 2 reads)
   std::vector<std::vector<std::uint32_t>> normal_stamp_;  // #objects x #V: round of the normal
@@ -331,6 +374,11 @@ class PenetrationSolver {
   std::vector<Partner> partners_;    // per object, its partners
   std::vector<int> chunk_offset_;    // #objects + 1: global index of stage 1's tet chunks
   std::vector<int> partnered_;       // the objects with partners
+  std::vector<FixedObject> fixed_;   // #objects
+  bool any_fixed_ = false;           // an object is active in fixed_ this solve
+  // with any_fixed_: the chunks stage 1 searches (every chunk of an object
+  // that is not fixed, a fixed one's searched chunks), ascending
+  std::vector<int> search_chunks_;
 
   SpatialHash hash_;  // stage 1: vertices
   std::vector<Eigen::Vector3i> vertex_cell_;
@@ -347,7 +395,8 @@ class PenetrationSolver {
   std::vector<LargeTet> large_tets_;           // every thread's, for SearchLargeTets
   std::vector<ThreadScratch> thread_scratch_;  // #threads
   std::vector<Hit> hits_;                      // sorted by (vertex, penetrated)
-  std::vector<int> hit_offset_;                // #global vertices + 1
+  std::vector<std::array<int, 2>> hit_range_;  // #global vertices: its hits [begin, end)
+  std::vector<int> hit_place_;                 // MergeHits' counting sort: #global vertices + 1
 
   // the entries, by object: each object's range is the size of its
   // surface, its entries in play at the start; those added for closest

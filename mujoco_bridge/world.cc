@@ -3,6 +3,8 @@
 #include <mujoco/mjxmacro.h>
 #include <mujoco/mujoco.h>
 
+#include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -332,7 +334,11 @@ void CheckModelFinite(const mjModel* m, const std::string& scene_path) {
 struct World::Proxy {
   int body = -1;
   std::shared_ptr<const TetMesh> mesh;  // in the body frame
-  Positions positions;                  // world frame, current
+  Positions positions;                  // world frame, at `pose`
+  // the body's xpos and xmat that `positions` were computed at, and how
+  // many times they were (1: never moved since, as a static body)
+  std::array<double, 12> pose{};
+  int placements = 0;
   Eigen::VectorXd areas;
   double friction = 0.5;
 };
@@ -619,11 +625,23 @@ void World::AddRigidForce(int body, const Eigen::Vector3d& point, const Eigen::V
 
 void World::UpdateProxies() {
   for (auto& proxy : proxies_) {
+    std::array<double, 12> pose;
+    std::copy_n(data_->xpos + 3 * proxy->body, 3, pose.begin());
+    std::copy_n(data_->xmat + 9 * proxy->body, 9, pose.begin() + 3);
+    // (a body that has not moved, bit for bit, such as a static one: its
+    // positions are still right, and the penetration solver keeps what it
+    // derived from them, see BuildCollisionObjects)
+    if (proxy->placements > 0 &&
+        std::memcmp(pose.data(), proxy->pose.data(), sizeof(double) * pose.size()) == 0) {
+      continue;
+    }
     Eigen::Isometry3d X_WB = BodyPose(data_, proxy->body);
     const Positions& rest = proxy->mesh->positions();
     for (Eigen::Index v = 0; v < rest.rows(); ++v) {
       proxy->positions.row(v) = (X_WB * rest.row(v).transpose()).transpose();
     }
+    proxy->pose = pose;
+    ++proxy->placements;
   }
 }
 
@@ -684,8 +702,12 @@ void World::BuildCollisionObjects() {
     objects_.push_back(
         {&bodies_[i]->mesh(), &bodies_[i]->positions(), false, scene_.tetbodies[i].self_collide});
   }
-  for (const auto& proxy : proxies_)
-    objects_.push_back({proxy->mesh.get(), &proxy->positions, true, false});
+  // a proxy placed once and never moved (a static body's) is fixed for
+  // every solver: its positions are those of any earlier solve
+  for (const auto& proxy : proxies_) {
+    objects_.push_back(
+        {proxy->mesh.get(), &proxy->positions, true, false, /*fixed=*/proxy->placements == 1});
+  }
 }
 
 int World::ProxyBody(int proxy) const {

@@ -7,7 +7,7 @@
 #include <atomic>
 #include <cstdlib>
 #include <new>
-#include <utility>
+#include <tuple>
 
 #include "collision/penetration.h"
 #include "tests/collision/scene_helpers.h"
@@ -40,16 +40,19 @@ namespace {
 // and at 2 mm cells (where the slab's tetrahedra are too large to search
 // cell by cell: the coarser vertex grid). One thread: on several, a
 // thread's share of the work varies from solve to solve, and its buffers
-// grow until they hold its largest share.
+// grow until they hold its largest share. The same with the slab fixed
+// (CollisionObject::fixed): what is kept of it is kept on the first solve.
 TEST(Allocation, WarmSolvesAllocateNothing) {
   testing::TestScene scene;
   scene.Add("box:size=0.05:res=6", {0, 0, 0});
   scene.Add("box:size=0.05:res=6", {0.07, 0.01, 0.0});
   scene.Add("sphere:size=0.03:res=1", {0.0, 0.0, 0.0});
   scene.Add("box:size=0.5,0.5,0.05:res=20,20,1", {0, 0, -0.09}, /*rigid=*/true);
-  for (const auto& [method, cell_size] :
-       {std::pair{DepthMethod::kConsistent, 0.0}, std::pair{DepthMethod::kClosest, 0.0},
-        std::pair{DepthMethod::kConsistent, 0.002}}) {
+  for (const auto& [method, cell_size, fixed] : {std::tuple{DepthMethod::kConsistent, 0.0, false},
+                                                 std::tuple{DepthMethod::kClosest, 0.0, false},
+                                                 std::tuple{DepthMethod::kConsistent, 0.002, false},
+                                                 std::tuple{DepthMethod::kConsistent, 0.0, true}}) {
+    scene.objects.back().fixed = fixed;  // (the slab: what is kept of it, kept once)
     PenetrationOptions options;
     options.method = method;
     options.cell_size = cell_size;
@@ -59,7 +62,9 @@ TEST(Allocation, WarmSolvesAllocateNothing) {
     solver.Solve(scene.objects);
     const long before = allocations.load();
     for (int solve = 0; solve < 3; ++solve) solver.Solve(scene.objects);
-    EXPECT_EQ(allocations.load() - before, 0) << DepthMethodName(method) << " " << cell_size;
+    EXPECT_EQ(allocations.load() - before, 0)
+        << DepthMethodName(method) << " " << cell_size << (fixed ? " fixed" : "");
+    EXPECT_EQ(solver.stats().fixed_objects, fixed ? 1 : 0);
     EXPECT_GT(solver.results().size(), 100u);
     if (method == DepthMethod::kConsistent) {
       EXPECT_GT(solver.stats().fallback, 0);

@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -832,6 +833,126 @@ TEST(Determinism, ReusedSolverMatchesANewOne) {
                               " threads, scene " + std::to_string(i));
       }
     }
+  }
+}
+
+// A fixed object (CollisionObject::fixed) is solved from what the solver
+// kept of it (its box, a tree over its chunks of tets and their faces),
+// passing over the parts far from its partners. Its results must be those
+// of the same scene solved without the flag, bit for bit, solve after
+// solve while the other objects move into it, across it and out, for both
+// methods on one and two threads. An object flagged fixed that moves
+// anyway (`moved_at`: shifted in place before that solve) must be seen to
+// move and solved as not fixed, then kept again.
+void ExpectFixedSolvedAsNotFixed(TestScene& scene, const std::vector<int>& fixed, int min_results,
+                                 int moved_at = -1) {
+  constexpr int kSolves = 8;
+  std::vector<CollisionObject> flagged = scene.objects;
+  for (int o : fixed) flagged[o].fixed = true;
+  const std::vector<Positions> start = [&] {
+    std::vector<Positions> x;
+    for (const auto& positions : scene.positions) x.push_back(*positions);
+    return x;
+  }();
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> speed(-0.004, 0.004);  // metres a solve
+  std::vector<Eigen::RowVector3d> velocity;
+  for (size_t o = 0; o < scene.objects.size(); ++o) {
+    velocity.emplace_back(speed(rng), speed(rng), speed(rng));
+  }
+  for (DepthMethod method : {DepthMethod::kConsistent, DepthMethod::kClosest}) {
+    for (int threads : {1, 2}) {
+      PenetrationOptions options;
+      options.method = method;
+      options.num_threads = threads;
+      PenetrationSolver with_flag(options), without(options);
+      int results = 0;
+      for (size_t o = 0; o < scene.objects.size(); ++o) *scene.positions[o] = start[o];
+      for (int solve = 0; solve < kSolves; ++solve) {
+        const std::string what = std::string(DepthMethodName(method)) + ", " +
+                                 std::to_string(threads) + " threads, solve " +
+                                 std::to_string(solve);
+        for (size_t o = 0; o < scene.objects.size(); ++o) {
+          if (std::find(fixed.begin(), fixed.end(), o) != fixed.end()) continue;
+          *scene.positions[o] = start[o].rowwise() + velocity[o] * solve;
+        }
+        if (solve == moved_at) *scene.positions[fixed[0]] = start[fixed[0]].array() + 1e-4;
+        if (solve == moved_at + 1 && moved_at >= 0) {
+          // (moved back in place: kept again from the next solve)
+          *scene.positions[fixed[0]] = start[fixed[0]];
+        }
+        const std::vector<PenetrationResult> expected = without.Solve(scene.objects);
+        ExpectSameResults(expected, with_flag.Solve(flagged), what);
+        const int moved = solve == moved_at || (moved_at >= 0 && solve == moved_at + 1);
+        EXPECT_EQ(with_flag.stats().fixed_objects, static_cast<int>(fixed.size()) - moved) << what;
+        EXPECT_EQ(without.stats().fixed_objects, 0) << what;
+        results += static_cast<int>(expected.size());
+      }
+      EXPECT_GT(results, min_results) << DepthMethodName(method) << ", " << threads;
+      for (size_t o = 0; o < scene.objects.size(); ++o) *scene.positions[o] = start[o];
+    }
+  }
+}
+
+TEST(FixedObjects, SameResultsAsNotFixed) {
+  {
+    SCOPED_TRACE("bodies on a fine slab");
+    TestScene scene;
+    scene.Add(TetMesh::Build(MakeShape("box:size=0.2,0.2,0.01:res=40,40,2")), Pose({0, 0, 0}),
+              /*rigid=*/true);
+    const char* shapes[] = {"sphere:size=0.02:res=1", "box:size=0.015,0.02,0.01:res=3",
+                            "capsule:size=0.008,0.015:res=2", "torus:size=0.02,0.008:res=2"};
+    std::mt19937 rng(3);
+    std::uniform_real_distribution<double> across(-0.15, 0.15);
+    for (int k = 0; k < 8; ++k) {
+      scene.Add(TetMesh::Build(MakeShape(shapes[k % 4])),
+                Pose({across(rng), across(rng), 0.012 + 0.004 * (k % 3)}, 0.3 * k, {1, 2, 3}));
+    }
+    scene.Add("sphere:size=0.01:res=1", {0.05, 0.05, 0.0});  // deep in it: fallback values
+    scene.Add("sphere:size=0.02:res=1", {0.5, 0.5, 0.5});    // far from it
+    ExpectFixedSolvedAsNotFixed(scene, {0}, 2000, /*moved_at=*/4);
+  }
+  for (int trial : {0, 1}) {
+    SCOPED_TRACE("crowded scene " + std::to_string(trial));  // (its box: rigid in trial 1)
+    TestScene scene = CrowdedScene(trial);
+    ExpectFixedSolvedAsNotFixed(scene, {0}, 500);
+  }
+  {
+    SCOPED_TRACE("a fixed self-colliding slab folded into itself, and two fixed bodies");
+    TestScene scene;
+    const int slab =
+        scene.Add(TetMesh::Build(MakeShape("box:size=0.1,0.02,0.02:res=40,8,8")), Pose({0, 0, 0}),
+                  /*rigid=*/false, /*self_collision=*/true);
+    Positions& x = *scene.positions[slab];
+    for (Eigen::Index v = 0; v < x.rows(); ++v) {
+      if (x(v, 0) > 0.0) x.row(v) += Eigen::RowVector3d(-0.045, 0.003, 0.004);
+    }
+    scene.Add(TetMesh::Build(MakeShape("box:size=0.03,0.03,0.03:res=6,6,6")),
+              Pose({-0.03, 0, 0.022}), /*rigid=*/true);
+    scene.Add("sphere:size=0.02:res=2", {0.0, 0.0, -0.02});
+    ExpectFixedSolvedAsNotFixed(scene, {slab, 2}, 1000);
+  }
+  {
+    SCOPED_TRACE("a fixed body with vertices in no tetrahedron");
+    RawMesh raw = MakeShape("box:size=0.05,0.05,0.01:res=10,10,2");
+    const Eigen::Index n = raw.positions.rows();
+    raw.positions.conservativeResize(n + 2, 3);
+    raw.positions.row(n) << 0.0, 0.0, 0.03;      // inside the ball above
+    raw.positions.row(n + 1) << 0.04, 0.0, 0.0;  // beside the box
+    TetMeshOptions options;
+    options.drop_unreferenced = false;
+    TestScene scene;
+    scene.Add(TetMesh::Build(std::move(raw), options), Pose({0, 0, 0}), /*rigid=*/true);
+    ASSERT_EQ(scene.meshes[0]->num_vertices(), n + 2);
+    scene.Add("sphere:size=0.02:res=2", {0.0, 0.0, 0.025});
+    ExpectFixedSolvedAsNotFixed(scene, {0}, 20);
+    PenetrationSolver solver;
+    std::vector<CollisionObject> flagged = scene.objects;
+    flagged[0].fixed = true;
+    bool loose_found = false;
+    for (const PenetrationResult& r : solver.Solve(flagged))
+      loose_found |= r.object == 0 && r.vertex == n;
+    EXPECT_TRUE(loose_found);
   }
 }
 

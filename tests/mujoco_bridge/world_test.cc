@@ -219,6 +219,75 @@ TEST(Coupling, CubeRestsOnAFreeBoxWithoutDrift) {
       << "resting on the box top";
 }
 
+// A proxy of a static body (a table welded to the world) is placed once and handed to
+// the penetration solver as fixed; a proxy of a moving body (the crate) is
+// placed every step and is not. The table's proxy stays where its body is,
+// also after the user moves the body in MuJoCo's model (then it is placed
+// again, and no longer fixed), and a soft cube comes to rest on it.
+TEST(Coupling, StaticProxyIsFixedAndFollowsItsBody) {
+  TempDir dir;
+  const std::string path = dir.Write("table.xml", R"(
+<mujoco model="table">
+  <option timestep="0.002"/>
+  <worldbody>
+    <geom name="floor" type="plane" size="2 2 0.1"/>
+    <body name="table" pos="0 0 0.05">
+      <geom name="table" type="box" size="0.2 0.2 0.05"/>
+    </body>
+    <body name="crate" pos="0.5 0 0.06">
+      <freejoint/>
+      <geom name="crate" type="box" size="0.05 0.05 0.05" mass="1"/>
+    </body>
+  </worldbody>
+  <deformable>
+    <rigidtet body="table" geom="table" resolution="6"/>
+    <rigidtet body="crate" geom="crate" resolution="2"/>
+    <tetbody name="cube" shape="box" size="0.03 0.03 0.03" resolution="3" pos="0 0 0.14"
+             density="1000" young="1e5" poisson="0.3" damping="1 0"/>
+  </deformable>
+</mujoco>)");
+  std::unique_ptr<World> world = World::Load(path);
+  ASSERT_EQ(world->num_proxies(), 2);
+  const int table_body = world->BodyId("table");
+  ASSERT_EQ(world->ProxyBody(0), table_body);
+  ASSERT_TRUE(world->RigidBodyIsStatic(table_body));
+  const int table = world->num_deformables();  // (collision objects)
+  const int crate = table + 1;
+  auto expect_placed = [&](int object, int body) {
+    const CollisionObject& proxy = world->collision_objects()[object];
+    Eigen::Isometry3d X_WB = Eigen::Isometry3d::Identity();
+    X_WB.translation() = world->RigidBodyPosition(body);
+    X_WB.linear() = world->RigidBodyOrientation(body).toRotationMatrix();
+    double error = 0.0;
+    for (int v = 0; v < proxy.mesh->num_vertices(); ++v) {
+      const Eigen::Vector3d rest = proxy.mesh->positions().row(v).transpose();
+      const Eigen::Vector3d x = proxy.positions->row(v).transpose();
+      error = std::max(error, (x - X_WB * rest).norm());
+    }
+    EXPECT_LT(error, 1e-12) << "object " << object;
+  };
+  int contact_steps = 0;
+  for (int s = 0; s < 500; ++s) {
+    world->Step();
+    ASSERT_EQ(world->metrics().status, StepStatus::kOk) << world->metrics().message;
+    contact_steps += world->metrics().colliding_points > 0;
+    EXPECT_TRUE(world->collision_objects()[table].fixed) << "step " << s;
+    if (s > 0) EXPECT_FALSE(world->collision_objects()[crate].fixed) << "step " << s;
+  }
+  expect_placed(table, table_body);
+  expect_placed(crate, world->BodyId("crate"));
+  EXPECT_GT(contact_steps, 100);
+  EXPECT_NEAR(world->deformable(0).CenterOfMass().z(), 0.1 + 0.03, 0.002) << "resting on the table";
+  EXPECT_LT(world->DeformableKineticEnergy(), 1e-6);
+  // the user lifts the table in MuJoCo's model: its proxy follows, and is
+  // no longer fixed
+  world->mutable_mj_model()->body_pos[3 * table_body + 2] += 0.01;
+  for (int s = 0; s < 5; ++s) world->Step();
+  EXPECT_FALSE(world->collision_objects()[table].fixed);
+  EXPECT_NEAR(world->RigidBodyPosition(table_body).z(), 0.06, 1e-12);
+  expect_placed(table, table_body);
+}
+
 // the same scene with the same thread count gives bit-identical states
 // (deformables and MuJoCo) through contacts: two soft cubes meeting at 10 m/s,
 // and a soft cube landing on a free MuJoCo box; 1 and 2 threads sum in other
