@@ -489,7 +489,8 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
   for (int o = 0; o < num_objects; ++o) {
     FixedObject& fixed = fixed_[o];
     fixed.active = objects[o].fixed && KeepFixed(objects[o], fixed);
-    if (!objects[o].fixed) fixed.mesh = nullptr;  // (seen moving: keep nothing)
+    if (!objects[o].fixed) fixed.mesh = nullptr;   // (seen moving: keep nothing)
+    if (!fixed.active) fixed.outcode_offset = -1;  // (its outcodes: all written)
     any_fixed_ |= fixed.active;
     stats_.fixed_objects += fixed.active;
     Eigen::Vector3d lo, hi;
@@ -643,6 +644,7 @@ bool PenetrationSolver::KeepFixed(const CollisionObject& object, FixedObject& fi
   }
   // keep it
   fixed.kept = true;
+  fixed.outcode_offset = -1;  // (another object's, or the outcodes written meanwhile)
   fixed.finite = RawBounds(x, fixed.lo, fixed.hi);
   const int num_runs = mesh.num_spatial_runs();
   const std::vector<int>& run_vertices = mesh.spatial_run_vertices();
@@ -798,18 +800,31 @@ void PenetrationSolver::ClassifyFixedVertices() {
   if (!any_fixed_) return;
   const int num_objects = static_cast<int>(fixed_.size());
   for (int o = 0; o < num_objects; ++o) {
-    const FixedObject& fixed = fixed_[o];
+    FixedObject& fixed = fixed_[o];
     if (!fixed.active) continue;
     const int offset = vertex_offset_[o];
     std::uint8_t* outcode = vertex_outcode_.data() + offset;
     Eigen::Vector3i* cell = vertex_cell_.data() + offset;
-    std::fill(outcode, outcode + (vertex_offset_[o + 1] - offset), kBeyondEverySide);
+    // (all set once while the object stays fixed and in its place among the
+    // objects; then only those classified in the last solve are reset)
+    if (fixed.outcode_offset != offset) {
+      std::fill(outcode, outcode + (vertex_offset_[o + 1] - offset), kBeyondEverySide);
+      fixed.outcode_offset = offset;
+    } else {
+      for (int v : fixed.classified) outcode[v] = kBeyondEverySide;
+    }
+    fixed.classified.clear();
+    fixed.hashed.clear();
     const Positions& x = *positions_[o];
     const Eigen::Vector3d lo = search_lo_[o], hi = search_hi_[o];
     auto classify = [&](int v) {
       const Eigen::Vector3d p = x.row(v).transpose();
       outcode[v] = Outcode(p, lo, hi);
-      if (outcode[v] == 0) cell[v] = Cell(p);
+      fixed.classified.push_back(v);
+      if (outcode[v] == 0) {
+        cell[v] = Cell(p);
+        fixed.hashed.push_back(v);
+      }
     };
     // (a vertex shared by several chunks is classified again, alike)
     const std::vector<int>& run_vertices = fixed.mesh->spatial_run_vertices();
@@ -818,6 +833,9 @@ void PenetrationSolver::ClassifyFixedVertices() {
       for (int i = run_offsets[run]; i < run_offsets[run + 1]; ++i) classify(run_vertices[i]);
     }
     for (int v : fixed.loose_vertices) classify(v);
+    // (in vertex order, as the other objects' vertices are hashed)
+    std::sort(fixed.hashed.begin(), fixed.hashed.end());
+    fixed.hashed.erase(std::unique(fixed.hashed.begin(), fixed.hashed.end()), fixed.hashed.end());
   }
 }
 
@@ -836,28 +854,52 @@ void PenetrationSolver::BuildVertexHash(int num_threads) {
   }
   const int per_vertex = keyed + unkeyed;
   // the insertions, vertex by vertex (keyed, then unkeyed), in blocks of
-  // kVertexBlock vertices: each block's first insertion
-  const int num_blocks = (num_vertices + kVertexBlock - 1) / kVertexBlock;
+  // up to kVertexBlock vertices, each with its first insertion: the
+  // vertices of the objects that are not fixed, taken eight outcodes at a
+  // time, and in place of each fixed object its list of vertices in the
+  // search box (its other outcodes are not read)
+  vertex_blocks_.clear();
+  auto add_blocks = [&](int begin, int end) {
+    for (int b = begin; b < end; b += kVertexBlock) {
+      vertex_blocks_.push_back({b, std::min(end, b + kVertexBlock), -1});
+    }
+  };
+  int span = 0;  // (start of the objects not fixed since the last fixed one)
+  for (int o = 0; o < num_objects && any_fixed_; ++o) {
+    if (!fixed_[o].active) continue;
+    add_blocks(span, vertex_offset_[o]);
+    vertex_blocks_.push_back({0, static_cast<int>(fixed_[o].hashed.size()), o});
+    span = vertex_offset_[o + 1];
+  }
+  add_blocks(span, num_vertices);
+  const int num_blocks = static_cast<int>(vertex_blocks_.size());
   const int threads = ThreadsFor(num_threads, num_blocks, 4);
-  auto block_end = [&](int block) { return std::min(num_vertices, (block + 1) * kVertexBlock); };
   block_insertion_.resize(num_blocks + 1);
   block_insertion_[0] = 0;
-  ParallelFor(threads, 0, num_blocks, [&](int block) {
-    block_insertion_[block + 1] =
-        CountZeroBytes(vertex_outcode_.data(), block * kVertexBlock, block_end(block)) * per_vertex;
+  ParallelFor(threads, 0, num_blocks, [&](int k) {
+    const VertexBlock& block = vertex_blocks_[k];
+    const int hashed = block.fixed >= 0
+                           ? block.end
+                           : CountZeroBytes(vertex_outcode_.data(), block.begin, block.end);
+    block_insertion_[k + 1] = hashed * per_vertex;
   });
-  for (int block = 0; block < num_blocks; ++block) {
-    block_insertion_[block + 1] += block_insertion_[block];
-  }
+  for (int k = 0; k < num_blocks; ++k) block_insertion_[k + 1] += block_insertion_[k];
   const int num_insertions = block_insertion_[num_blocks];
   hash_.Reset(cell_size_, num_insertions);
   hash_.ResizeInsertions(num_insertions);
-  ParallelFor(threads, 0, num_blocks, [&](int block) {
-    int i = block_insertion_[block];
-    ForEachZeroByte(vertex_outcode_.data(), block * kVertexBlock, block_end(block), [&](int g) {
+  ParallelFor(threads, 0, num_blocks, [&](int k) {
+    const VertexBlock& block = vertex_blocks_[k];
+    int i = block_insertion_[k];
+    auto insert = [&](int g) {
       if (keyed) hash_.SetInsertion(i++, vertex_cell_[g], g, vertex_object_[g] + 1);
       if (unkeyed) hash_.SetInsertion(i++, vertex_cell_[g], g);
-    });
+    };
+    if (block.fixed >= 0) {
+      const int offset = vertex_offset_[block.fixed];
+      for (int v : fixed_[block.fixed].hashed) insert(offset + v);
+    } else {
+      ForEachZeroByte(vertex_outcode_.data(), block.begin, block.end, insert);
+    }
   });
   hash_.BuildInsertions(threads);
   // what the tetrahedra test, in the hash's bucket order

@@ -261,6 +261,12 @@ class PenetrationSolver {
     std::vector<int> loose_vertices;  // in no tet (TetMeshOptions::drop_unreferenced off)
     bool active = false;              // this solve: fixed, and kept
     std::vector<int> searched;        // this solve: chunks whose box meets the search box
+    // this solve: the vertices of those chunks (and loose ones) that got an
+    // outcode, with repeats, and those in the search box, ascending; the
+    // others' outcodes are kBeyondEverySide, all set when its first vertex
+    // was at outcode_offset among the objects' (-1: not set)
+    std::vector<int> classified, hashed;
+    int outcode_offset = -1;
   };
   // Whether a fixed object can use what is kept of it this solve: it can
   // unless some of its sampled vertices moved since the last solve (then it
@@ -382,7 +388,15 @@ class PenetrationSolver {
 
   SpatialHash hash_;  // stage 1: vertices
   std::vector<Eigen::Vector3i> vertex_cell_;
-  std::vector<int> block_insertion_;  // BuildVertexHash: per block of vertices, its first insertion
+  // BuildVertexHash: blocks of vertices to hash, each [begin, end) of the
+  // global vertices, or `fixed`'s list of vertices in its search box (its
+  // first `end`); and each block's first insertion
+  struct VertexBlock {
+    int begin, end;
+    int fixed;  // the fixed object, or -1
+  };
+  std::vector<VertexBlock> vertex_blocks_;
+  std::vector<int> block_insertion_;
   std::vector<std::uint8_t> vertex_outcode_;  // #global vertices: the sides of its object's
                                               // search box it lies beyond (0: hashed)
   HashedVertices hashed_;

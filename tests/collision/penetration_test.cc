@@ -956,6 +956,68 @@ TEST(FixedObjects, SameResultsAsNotFixed) {
   }
 }
 
+// A ball that pokes through the top face of a fixed box and then is
+// enclosed deep in it, in one jump or sinking step by step: enclosed, its
+// points get fallback values from the box's nearest faces, those it had
+// poked through before. After the jump, no chunk near them is searched, and
+// their corners' outcodes of the earlier solve must not pass for this
+// solve's (the test fails if they are left as they were).
+TEST(FixedObjects, BallSinkingIntoAFixedBoxMatchesNotFixed) {
+  TestScene scene;
+  scene.Add(TetMesh::Build(MakeShape("box:size=0.05:res=10")), Pose({0, 0, 0}), /*rigid=*/true);
+  const int ball = scene.Add("sphere:size=0.01:res=1", {0.003, 0.002, 0.05});
+  const Positions start = *scene.positions[ball];
+  std::vector<CollisionObject> flagged = scene.objects;
+  flagged[0].fixed = true;
+  PenetrationSolver with_flag, without;
+  int fallback = 0;
+  const double sunk[] = {0.0, 0.035, 0.0, 0.035, 0.005, 0.01, 0.015, 0.02, 0.025, 0.03, 0.035};
+  for (int solve = 0; solve < static_cast<int>(std::size(sunk)); ++solve) {
+    *scene.positions[ball] = start.rowwise() - Eigen::RowVector3d(0, 0, sunk[solve]);
+    const std::vector<PenetrationResult> expected = without.Solve(scene.objects);
+    ExpectSameResults(expected, with_flag.Solve(flagged), "solve " + std::to_string(solve));
+    EXPECT_EQ(with_flag.stats().fixed_objects, 1);
+    fallback += without.stats().fallback;
+  }
+  EXPECT_GT(fallback, 20);
+}
+
+// One solver taken through different scenes whose first object is fixed
+// (what it kept of one object must not pass for another's in its place):
+// the results of a new solver without the flag on each, bit for bit.
+TEST(FixedObjects, ReusedSolverMatchesANewOne) {
+  std::vector<TestScene> scenes;
+  auto slab_scene = [] {
+    TestScene scene;
+    scene.Add(TetMesh::Build(MakeShape("box:size=0.1,0.1,0.03:res=20,20,6")), Pose({0, 0, 0}),
+              /*rigid=*/true);
+    scene.Add("sphere:size=0.01:res=1", {0.02, 0.0, 0.0});  // enclosed: fallback values
+    scene.Add("box:size=0.02:res=3", {-0.05, 0.03, 0.035});
+    return scene;
+  };
+  scenes.push_back(slab_scene());
+  scenes.push_back(CrowdedScene(0));
+  scenes.push_back(slab_scene());
+  scenes.push_back(CrowdedScene(1));
+  scenes.push_back(slab_scene());
+  for (int threads : {1, 2}) {
+    PenetrationOptions options;
+    options.num_threads = threads;
+    PenetrationSolver reused(options);
+    for (size_t i = 0; i < scenes.size(); ++i) {
+      std::vector<CollisionObject> flagged = scenes[i].objects;
+      flagged[0].fixed = true;
+      const std::vector<PenetrationResult> results = reused.Solve(flagged);
+      EXPECT_EQ(reused.stats().fixed_objects, 1);
+      if (i == 0) EXPECT_GT(reused.stats().fallback, 0);
+      ASSERT_FALSE(results.empty());
+      PenetrationSolver fresh(options);
+      ExpectSameResults(fresh.Solve(scenes[i].objects), results,
+                        std::to_string(threads) + " threads, scene " + std::to_string(i));
+    }
+  }
+}
+
 // The cell size is a speed setting: whatever it is (from a fortieth of
 // the average edge to ten million times it), the results are the same,
 // bit for bit, as with the default. (Tolerances such as "on the surface"
