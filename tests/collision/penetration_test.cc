@@ -1009,7 +1009,9 @@ TEST(FixedObjects, ReusedSolverMatchesANewOne) {
       flagged[0].fixed = true;
       const std::vector<PenetrationResult> results = reused.Solve(flagged);
       EXPECT_EQ(reused.stats().fixed_objects, 1);
-      if (i == 0) EXPECT_GT(reused.stats().fallback, 0);
+      if (i == 0) {
+        EXPECT_GT(reused.stats().fallback, 0);
+      }
       ASSERT_FALSE(results.empty());
       PenetrationSolver fresh(options);
       ExpectSameResults(fresh.Solve(scenes[i].objects), results,

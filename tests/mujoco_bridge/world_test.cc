@@ -272,7 +272,9 @@ TEST(Coupling, StaticProxyIsFixedAndFollowsItsBody) {
     ASSERT_EQ(world->metrics().status, StepStatus::kOk) << world->metrics().message;
     contact_steps += world->metrics().colliding_points > 0;
     EXPECT_TRUE(world->collision_objects()[table].fixed) << "step " << s;
-    if (s > 0) EXPECT_FALSE(world->collision_objects()[crate].fixed) << "step " << s;
+    if (s > 0) {
+      EXPECT_FALSE(world->collision_objects()[crate].fixed) << "step " << s;
+    }
   }
   expect_placed(table, table_body);
   expect_placed(crate, world->BodyId("crate"));
