@@ -351,44 +351,37 @@ BENCHMARK(BM_MediumSlab)
 // one small ball (2 cm, 320 tetrahedra) pressed 5 mm into a rigid slab (2 m
 // x 2 m x 10 cm) of cells x cells x 2 cells, 6 tets each (25: 7,500 tets; 200:
 // 480,000): the contact stays the same size while the slab grows, so this
-// is what a large body costs a solve beyond its contacts (its vertices,
-// tetrahedra and faces are each passed over once a solve)
+// is what a large body costs a solve beyond its contacts (not fixed: its
+// vertices, tetrahedra and faces are each passed over once a solve)
+void BallOnSlab(benchmark::State& state, bool fixed) {
+  Scene scene;
+  const int cells = static_cast<int>(state.range(0));
+  scene.Add(scene.Mesh("box:size=1,1,0.05:res=" + std::to_string(cells) + "," +
+                       std::to_string(cells) + ",2"),
+            Eigen::Vector3d::Zero());
+  scene.objects.back().rigid = true;
+  scene.objects.back().fixed = fixed;
+  scene.Add(scene.Mesh("sphere:size=0.02:res=2"), Eigen::Vector3d(0.0, 0.0, 0.065));
+  Run(state, scene);
+}
+void BallOnSlabArgs(benchmark::internal::Benchmark* b) {
+  b->ArgsProduct({{25, 50, 100, 200}, {0}, {1}})
+      ->ArgNames({"cells", "closest", "threads"})
+      ->Unit(benchmark::kMicrosecond)
+      ->UseRealTime();
+}
 void BM_BallOnSlab(benchmark::State& state) {
-  Scene scene;
-  const int cells = static_cast<int>(state.range(0));
-  scene.Add(scene.Mesh("box:size=1,1,0.05:res=" + std::to_string(cells) + "," +
-                       std::to_string(cells) + ",2"),
-            Eigen::Vector3d::Zero());
-  scene.objects.back().rigid = true;
-  scene.Add(scene.Mesh("sphere:size=0.02:res=2"), Eigen::Vector3d(0.0, 0.0, 0.065));
-  Run(state, scene);
+  BallOnSlab(state, /*fixed=*/false);
 }
-BENCHMARK(BM_BallOnSlab)
-    ->ArgsProduct({{25, 50, 100, 200}, {0}, {1}})
-    ->ArgNames({"cells", "closest", "threads"})
-    ->Unit(benchmark::kMicrosecond)
-    ->UseRealTime();
-
+BENCHMARK(BM_BallOnSlab)->Apply(BallOnSlabArgs);
 // The same with the slab fixed (CollisionObject::fixed, as the bridge
-// marks a proxy of MuJoCo's world body): the solver keeps the slab's box
-// and a tree over its chunks, and a solve should cost about the same
-// whatever the slab's size.
+// marks a proxy of a body welded to the world): the solver keeps the
+// slab's box and a tree over its chunks, and passes over only the chunks
+// near the ball.
 void BM_BallOnFixedSlab(benchmark::State& state) {
-  Scene scene;
-  const int cells = static_cast<int>(state.range(0));
-  scene.Add(scene.Mesh("box:size=1,1,0.05:res=" + std::to_string(cells) + "," +
-                       std::to_string(cells) + ",2"),
-            Eigen::Vector3d::Zero());
-  scene.objects.back().rigid = true;
-  scene.objects.back().fixed = true;
-  scene.Add(scene.Mesh("sphere:size=0.02:res=2"), Eigen::Vector3d(0.0, 0.0, 0.065));
-  Run(state, scene);
+  BallOnSlab(state, /*fixed=*/true);
 }
-BENCHMARK(BM_BallOnFixedSlab)
-    ->ArgsProduct({{25, 50, 100, 200}, {0}, {1}})
-    ->ArgNames({"cells", "closest", "threads"})
-    ->Unit(benchmark::kMicrosecond)
-    ->UseRealTime();
+BENCHMARK(BM_BallOnFixedSlab)->Apply(BallOnSlabArgs);
 
 }  // namespace
 }  // namespace tetcosim
