@@ -365,7 +365,7 @@ void BallOnSlab(benchmark::State& state, bool fixed) {
   Run(state, scene);
 }
 void BallOnSlabArgs(benchmark::internal::Benchmark* b) {
-  b->ArgsProduct({{25, 50, 100, 200}, {0}, {1}})
+  b->ArgsProduct({{25, 50, 100, 200}, {0, 1}, {1}})
       ->ArgNames({"cells", "closest", "threads"})
       ->Unit(benchmark::kMicrosecond)
       ->UseRealTime();

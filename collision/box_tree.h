@@ -113,7 +113,9 @@ class BoxTree {
     int first;  // leaf: its first entry in items_; inner: its right child
     int count;  // leaf: its number of items; inner: 0 (left child: the next node)
   };
-  static double Distance2(const Node& node, const Eigen::Vector3d& p) {
+  // (always inlined, as BoxDistance2: penetration.cc is large enough that
+  // g++ would call it)
+  [[gnu::always_inline]] static double Distance2(const Node& node, const Eigen::Vector3d& p) {
     return BoxDistance2(node.lo, node.hi, p);
   }
   // builds the subtree over the sorted items [begin, end) and returns its

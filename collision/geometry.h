@@ -5,6 +5,7 @@
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+#include <algorithm>
 #include <cmath>
 
 namespace tetcosim {
@@ -155,9 +156,16 @@ bool SmoothNormal(const Eigen::Vector3d& n0, const Eigen::Vector3d& n1, const Ei
 }
 
 // The squared distance from p to the box [lo, hi] (0 inside it).
-inline double BoxDistance2(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi,
-                           const Eigen::Vector3d& p) {
-  return (lo - p).cwiseMax(p - hi).cwiseMax(0.0).squaredNorm();
+[[gnu::always_inline]] inline double BoxDistance2(const Eigen::Vector3d& lo,
+                                                  const Eigen::Vector3d& hi,
+                                                  const Eigen::Vector3d& p) {
+  // (Eigen's (lo - p).cwiseMax(p - hi).cwiseMax(0).squaredNorm(), the same
+  // operations in the same order, written out and always inlined: once
+  // penetration.cc grew, g++ stopped inlining it into the box tree's
+  // searches, and closest features took 10% more instructions)
+  double d[3];
+  for (int k = 0; k < 3; ++k) d[k] = std::max(std::max(lo[k] - p[k], p[k] - hi[k]), 0.0);
+  return (d[0] * d[0] + d[1] * d[1]) + d[2] * d[2];
 }
 
 // The point of the triangle (a, b, c) nearest to p (exact, by Voronoi regions

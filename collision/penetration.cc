@@ -685,6 +685,17 @@ bool PenetrationSolver::KeepFixed(const CollisionObject& object, FixedObject& fi
   fixed.run_faces.resize(num_faces);
   std::vector<int> next(fixed.run_face_offset.begin(), fixed.run_face_offset.end() - 1);
   for (int f = 0; f < num_faces; ++f) fixed.run_faces[next[tet_run[mesh.surface_tet()[f]]]++] = f;
+  fixed.face_lo.resize(num_faces);
+  fixed.face_hi.resize(num_faces);
+  for (int f = 0; f < num_faces && fixed.finite; ++f) {
+    Eigen::Vector3d corner[3];
+    for (int k = 0; k < 3; ++k) corner[k] = position(mesh.surface()(f, k));
+    InflatedBounds(corner, fixed.face_lo[f], fixed.face_hi[f]);
+  }
+  fixed.faces.Build(fixed.finite ? std::span<const Eigen::Vector3d>(fixed.face_lo)
+                                 : std::span<const Eigen::Vector3d>(),
+                    fixed.finite ? std::span<const Eigen::Vector3d>(fixed.face_hi)
+                                 : std::span<const Eigen::Vector3d>());
   return true;
 }
 
@@ -1294,7 +1305,9 @@ int PenetrationSolver::PlaceSurfaces(std::span<const CollisionObject> objects, b
   for (int o : surface_list_) {
     const int num_faces = static_cast<int>(objects[o].mesh->surface().rows());
     object_small_[o] = num_faces <= kSmallSurface;
-    object_fully_hashed_[o] = full || object_small_[o];
+    // (a fixed object's closest features come from the tree kept of it:
+    // its faces in play, as for stage 2, are enough)
+    object_fully_hashed_[o] = object_small_[o] || (full && !fixed_[o].active);
     object_entry_begin_[o] = num_entries;
     object_entry_end_[o] = num_entries;
     num_entries += num_faces;
@@ -1412,7 +1425,7 @@ void PenetrationSolver::HashSurface(std::span<const CollisionObject> objects, in
 }
 
 void PenetrationSolver::AddRemainingTriangles(std::span<const CollisionObject> objects, int b) {
-  if (object_fully_hashed_[b]) return;
+  if (object_fully_hashed_[b] || fixed_[b].active) return;  // (fixed: its tree of all faces)
   object_fully_hashed_[b] = 1;
   const Triangles& surface = objects[b].mesh->surface();
   object_rest_begin_[b] = static_cast<int>(triangles_.size());
@@ -1915,10 +1928,20 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
     }
     return std::isfinite(best);
   }
-  // the object's box tree over all its triangles if ComputeClosest built
-  // it (nearer boxes first, those farther than the best passed over), else
-  // every triangle
-  if (closest_queries_[b] >= kMinTreeQueries) {
+  // the object's box tree over all its triangles: kept, if it is fixed,
+  // or built by ComputeClosest (nearer boxes first, those farther than the
+  // best passed over); else every triangle
+  if (fixed_[b].active) {
+    const FixedObject& fixed = fixed_[b];
+    const Positions& x = *objects[b].positions;
+    fixed.faces.Nearest(p, best, [&](int f) {
+      test_face(f, fixed.face_lo[f], fixed.face_hi[f], [&] {
+        return std::array<Eigen::Vector3d, 3>{x.row(surface(f, 0)).transpose(),
+                                              x.row(surface(f, 1)).transpose(),
+                                              x.row(surface(f, 2)).transpose()};
+      });
+    });
+  } else if (closest_queries_[b] >= kMinTreeQueries) {
     const ObjectTriangles& hashed = object_triangles_[b];
     hashed.tree.Nearest(p, best, [&](int item) { test(hashed.tree_entry[item]); });
   } else {
@@ -1949,7 +1972,7 @@ void PenetrationSolver::ComputeClosest(std::span<const CollisionObject> objects,
     AddRemainingTriangles(objects, b);
     // a box tree for the objects with enough queries to pay for it (a
     // coarse box's one corner in a fine ball is cheaper searched whole)
-    if (++closest_queries_[b] == kMinTreeQueries && !object_small_[b]) {
+    if (++closest_queries_[b] == kMinTreeQueries && !object_small_[b] && !fixed_[b].active) {
       tree_objects_.push_back(b);
     }
   }

@@ -245,8 +245,9 @@ class PenetrationSolver {
 
   // What the solver keeps of a fixed object (CollisionObject::fixed)
   // between solves, and what a solve found in it: its box, a tree over its
-  // chunks' boxes (a chunk's box: that of its tets' corners), and per chunk
-  // its surface faces (the faces of its tets, ascending).
+  // chunks' boxes (a chunk's box: that of its tets' corners), per chunk its
+  // surface faces (the faces of its tets, ascending), and a tree over its
+  // faces.
   struct FixedObject {
     const TetMesh* mesh = nullptr;  // the object seen last (null: none)
     const Positions* positions = nullptr;
@@ -258,6 +259,11 @@ class PenetrationSolver {
     std::vector<Eigen::Vector3d> run_lo, run_hi;  // per chunk
     BoxTree runs;                                 // over the chunks' boxes
     std::vector<int> run_face_offset, run_faces;  // per chunk its surface faces
+    // closest features (the closest method, fallback values): a box tree
+    // over all its surface faces (item f: face f), their boxes as
+    // MakeTriangle's
+    BoxTree faces;
+    std::vector<Eigen::Vector3d> face_lo, face_hi;
     std::vector<int> loose_vertices;  // in no tet (TetMeshOptions::drop_unreferenced off)
     bool active = false;              // this solve: fixed, and kept
     std::vector<int> searched;        // this solve: chunks whose box meets the search box
