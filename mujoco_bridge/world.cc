@@ -336,7 +336,8 @@ struct World::Proxy {
   std::shared_ptr<const TetMesh> mesh;  // in the body frame
   Positions positions;                  // world frame, at `pose`
   // the body's xpos and xmat that `positions` were computed at, and how
-  // many times they were (1: never moved since, as a static body)
+  // many times they were: 0, 1 (never moved since, as a static body) or 2
+  // (more)
   std::array<double, 12> pose{};
   int placements = 0;
   Eigen::VectorXd areas;
@@ -641,7 +642,7 @@ void World::UpdateProxies() {
       proxy->positions.row(v) = (X_WB * rest.row(v).transpose()).transpose();
     }
     proxy->pose = pose;
-    ++proxy->placements;
+    proxy->placements = std::min(proxy->placements + 1, 2);
   }
 }
 
