@@ -8,7 +8,8 @@
 // fallback), fine cubes on a coarse slab (triangles too large to hash)
 // and on a less coarse one (tetrahedra too large to search cell by cell),
 // and one small ball on rigid slabs of 7,500 to 480,000 tetrahedra (what a
-// large body costs beyond its contacts). The scenes also run moving
+// large body costs beyond its contacts: still, fixed, turning, and turning
+// with its frame). The scenes also run moving
 // (BM_TwoCubesMoving, ...: each solve the next time step, as in a
 // simulation).
 //
@@ -43,9 +44,13 @@ struct Scene {
   std::vector<std::unique_ptr<Positions>> positions;
   std::vector<CollisionObject> objects;
   // moving scenes only (MakeMoving): each object's positions at step 0 and
-  // its velocity
+  // its velocity, its angular velocity about z through the origin (rad/s),
+  // and the rigid motion from step 0 to the step shown (for objects given
+  // it as their CollisionObject::frame)
   std::vector<Positions> start;
   std::vector<Eigen::RowVector3d> velocity;
+  std::vector<double> spin;
+  std::vector<RigidFrame> frames;
 
   void Add(const TetMesh& mesh, const Eigen::Vector3d& translation, double angle = 0.0) {
     // meshes of the same shape are shared, as scenes do
@@ -72,13 +77,19 @@ struct Scene {
       start.push_back(*x);
       velocity.emplace_back(component(rng), component(rng), component(rng));
     }
+    spin.assign(positions.size(), 0.0);
+    frames.resize(positions.size());  // (not resized again: objects point into it)
   }
   bool moving() const { return !start.empty(); }
   // Moves the objects to step `step` (a moving scene), in place, as a
   // simulation's step does.
   void ShowStep(int step) {
+    const double t = kMovingDt * step;
     for (size_t o = 0; o < positions.size(); ++o) {
-      *positions[o] = start[o].rowwise() + velocity[o] * (kMovingDt * step);
+      RigidFrame& frame = frames[o];
+      frame.rotation = Eigen::AngleAxisd(spin[o] * t, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+      frame.translation = velocity[o].transpose() * t;
+      *positions[o] = (start[o] * frame.rotation.transpose()).rowwise() + velocity[o] * t;
     }
   }
 };
@@ -353,15 +364,21 @@ BENCHMARK(BM_MediumSlab)
 // 480,000): the contact stays the same size while the slab grows, so this
 // is what a large body costs a solve beyond its contacts (not fixed: its
 // vertices, tetrahedra and faces are each passed over once a solve)
-void BallOnSlab(benchmark::State& state, bool fixed) {
+enum class Slab { kStill, kFixed, kTurning, kFramed };
+void BallOnSlab(benchmark::State& state, Slab slab) {
   Scene scene;
   const int cells = static_cast<int>(state.range(0));
   scene.Add(scene.Mesh("box:size=1,1,0.05:res=" + std::to_string(cells) + "," +
                        std::to_string(cells) + ",2"),
             Eigen::Vector3d::Zero());
   scene.objects.back().rigid = true;
-  scene.objects.back().fixed = fixed;
+  scene.objects.back().fixed = slab == Slab::kFixed;
   scene.Add(scene.Mesh("sphere:size=0.02:res=2"), Eigen::Vector3d(0.0, 0.0, 0.065));
+  if (slab == Slab::kTurning || slab == Slab::kFramed) {
+    scene.MakeMoving(kMovingSpeed);
+    scene.spin[0] = 1.0;
+    if (slab == Slab::kFramed) scene.objects[0].frame = &scene.frames[0];
+  }
   Run(state, scene);
 }
 void BallOnSlabArgs(benchmark::internal::Benchmark* b) {
@@ -371,7 +388,7 @@ void BallOnSlabArgs(benchmark::internal::Benchmark* b) {
       ->UseRealTime();
 }
 void BM_BallOnSlab(benchmark::State& state) {
-  BallOnSlab(state, /*fixed=*/false);
+  BallOnSlab(state, Slab::kStill);
 }
 BENCHMARK(BM_BallOnSlab)->Apply(BallOnSlabArgs);
 // The same with the slab fixed (CollisionObject::fixed, as the bridge
@@ -379,9 +396,22 @@ BENCHMARK(BM_BallOnSlab)->Apply(BallOnSlabArgs);
 // slab's box and a tree over its chunks, and passes over only the chunks
 // near the ball.
 void BM_BallOnFixedSlab(benchmark::State& state) {
-  BallOnSlab(state, /*fixed=*/true);
+  BallOnSlab(state, Slab::kFixed);
 }
 BENCHMARK(BM_BallOnFixedSlab)->Apply(BallOnSlabArgs);
+// The slab turning (1 rad/s about z) and moving, as the ball does (each
+// solve the next step): its positions given alone, and with the slab's
+// frame (CollisionObject::frame, as the bridge gives a moving body's
+// proxy), so that the solver keeps a tree over its chunks in its body
+// frame and passes over its positions only for its box.
+void BM_BallOnTurningSlab(benchmark::State& state) {
+  BallOnSlab(state, Slab::kTurning);
+}
+BENCHMARK(BM_BallOnTurningSlab)->Apply(BallOnSlabArgs);
+void BM_BallOnFramedSlab(benchmark::State& state) {
+  BallOnSlab(state, Slab::kFramed);
+}
+BENCHMARK(BM_BallOnFramedSlab)->Apply(BallOnSlabArgs);
 
 }  // namespace
 }  // namespace tetcosim

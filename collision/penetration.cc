@@ -344,8 +344,20 @@ void ForEachZeroByte(const std::uint8_t* bytes, int begin, int end, Visit&& visi
 // the chunks that stage 1 passes over (geometrically impossible, and so
 // never taken for a real outcode)
 constexpr std::uint8_t kBeyondEverySide = 0x3F;
-// a fixed object's vertices compared every solve (CollisionObject::fixed)
+// a fixed or framed object's vertices compared every solve
+// (CollisionObject::fixed, ::frame)
 constexpr int kFixedSamples = 16;
+// A framed object's positions taken into its body frame differ from one
+// solve to the next by rounding, a few ulp of the coordinates' magnitude
+// (body-frame and translation): a sample may differ by kFrameRounding
+// times that magnitude, the kept boxes are grown by kFramePad times it
+// (at keeping), and they are kept anew when the magnitude has grown so far
+// (a body carried far away) that the rounding could reach an eighth of the
+// growth.
+constexpr double kFrameRounding = 1e-12;
+constexpr double kFramePad = 1e-9;
+// how far R^T R may be from the identity, entry by entry, for a rotation
+constexpr double kRotationTolerance = 1e-9;
 
 const char* DepthMethodName(DepthMethod method) {
   return method == DepthMethod::kConsistent ? "consistent" : "closest";
@@ -488,14 +500,16 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
   any_fixed_ = false;
   for (int o = 0; o < num_objects; ++o) {
     FixedObject& fixed = fixed_[o];
-    fixed.active = objects[o].fixed && KeepFixed(objects[o], fixed);
-    if (!objects[o].fixed) fixed.mesh = nullptr;   // (seen moving: keep nothing)
+    const bool keepable = objects[o].fixed || objects[o].frame != nullptr;
+    fixed.active = keepable && KeepFixed(objects[o], fixed);
+    if (!keepable) fixed.mesh = nullptr;           // (seen moving: keep nothing)
     if (!fixed.active) fixed.outcode_offset = -1;  // (its outcodes: all written)
     any_fixed_ |= fixed.active;
-    stats_.fixed_objects += fixed.active;
+    stats_.fixed_objects += fixed.active && !fixed.framed;
+    stats_.framed_objects += fixed.active && fixed.framed;
     Eigen::Vector3d lo, hi;
     bool finite;
-    if (fixed.active) {
+    if (fixed.active && !fixed.framed) {
       lo = fixed.lo;
       hi = fixed.hi;
       finite = fixed.finite;
@@ -605,8 +619,17 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
       continue;
     }
     fixed.searched.clear();
-    fixed.runs.Overlapping(search_lo_[o], search_hi_[o],
-                           [&](int run) { fixed.searched.push_back(run); });
+    Eigen::Vector3d lo = search_lo_[o], hi = search_hi_[o];
+    if (fixed.framed && (lo.array() <= hi.array()).all()) {
+      // the search box in the body frame: the box around it there, grown
+      // as the kept boxes are
+      const Eigen::Vector3d centre = fixed.ToBody(0.5 * (lo + hi));
+      const Eigen::Vector3d half = fixed.rotation.transpose().cwiseAbs() * (0.5 * (hi - lo)) +
+                                   Eigen::Vector3d::Constant(fixed.pad);
+      lo = centre - half;
+      hi = centre + half;
+    }
+    fixed.runs.Overlapping(lo, hi, [&](int run) { fixed.searched.push_back(run); });
     std::sort(fixed.searched.begin(), fixed.searched.end());
     for (int run : fixed.searched) search_chunks_.push_back(chunk_offset_[o] + run);
   }
@@ -616,19 +639,44 @@ bool PenetrationSolver::KeepFixed(const CollisionObject& object, FixedObject& fi
   const TetMesh& mesh = *object.mesh;
   const Positions& x = *object.positions;
   const int num_vertices = mesh.num_vertices();
-  auto position = [&](int v) { return Eigen::Vector3d(x.row(v).transpose()); };
-  if (fixed.mesh == object.mesh && fixed.positions == object.positions) {
+  const bool framed = !object.fixed;  // (else it has a frame)
+  if (framed) {
+    const RigidFrame& frame = *object.frame;
+    const double off_identity =
+        (frame.rotation.transpose() * frame.rotation - Eigen::Matrix3d::Identity())
+            .cwiseAbs()
+            .maxCoeff();
+    if (!(off_identity <= kRotationTolerance) || !frame.translation.allFinite()) {
+      fixed.mesh = nullptr;  // (not a rotation: keep nothing)
+      return false;
+    }
+    fixed.rotation = frame.rotation;
+    fixed.translation = frame.translation;
+  }
+  const bool seen =
+      fixed.mesh == object.mesh && fixed.positions == object.positions && fixed.framed == framed;
+  fixed.framed = framed;
+  // a vertex's position, in the body frame if framed
+  auto position = [&](int v) { return fixed.ToBody(x.row(v).transpose()); };
+  if (seen) {
+    // (the rounding of the samples as kept, and as now)
+    const double magnitude =
+        std::max(fixed.pad / kFramePad, fixed.body_scale + fixed.translation.cwiseAbs().maxCoeff());
+    const double tolerance = framed ? kFrameRounding * magnitude : 0.0;
     bool still = true;
     for (size_t i = 0; i < fixed.sample_vertex.size(); ++i) {
       const Eigen::Vector3d p = position(fixed.sample_vertex[i]);
-      still &= std::memcmp(p.data(), fixed.sample[i].data(), sizeof(double) * 3) == 0;
-      fixed.sample[i] = p;
+      still &= framed ? (p - fixed.sample[i]).cwiseAbs().maxCoeff() <= tolerance
+                      : std::memcmp(p.data(), fixed.sample[i].data(), sizeof(double) * 3) == 0;
+    }
+    if (still && fixed.kept && 8.0 * tolerance <= fixed.pad) return true;
+    for (size_t i = 0; i < fixed.sample_vertex.size(); ++i) {
+      fixed.sample[i] = position(fixed.sample_vertex[i]);
     }
     if (!still) {
       fixed.kept = false;
       return false;
     }
-    if (fixed.kept) return true;
   } else {
     fixed.mesh = object.mesh;
     fixed.positions = object.positions;
@@ -646,6 +694,19 @@ bool PenetrationSolver::KeepFixed(const CollisionObject& object, FixedObject& fi
   fixed.kept = true;
   fixed.outcode_offset = -1;  // (another object's, or the outcodes written meanwhile)
   fixed.finite = RawBounds(x, fixed.lo, fixed.hi);
+  fixed.pad = 0.0;
+  if (framed) {
+    if (!fixed.finite) {  // (left out this solve; not kept, as its positions may change)
+      fixed.mesh = nullptr;
+      return false;
+    }
+    fixed.body_scale = 0.0;
+    for (int v = 0; v < num_vertices; ++v) {
+      fixed.body_scale = std::max(fixed.body_scale, position(v).cwiseAbs().maxCoeff());
+    }
+    fixed.pad = kFramePad * (fixed.body_scale + fixed.translation.cwiseAbs().maxCoeff());
+  }
+  const Eigen::Vector3d pad = Eigen::Vector3d::Constant(fixed.pad);
   const int num_runs = mesh.num_spatial_runs();
   const std::vector<int>& run_vertices = mesh.spatial_run_vertices();
   const std::vector<int>& run_offsets = mesh.spatial_run_vertex_offsets();
@@ -660,8 +721,8 @@ bool PenetrationSolver::KeepFixed(const CollisionObject& object, FixedObject& fi
       hi = hi.cwiseMax(position(run_vertices[i]));
       in_run[run_vertices[i]] = 1;
     }
-    fixed.run_lo[r] = lo;
-    fixed.run_hi[r] = hi;
+    fixed.run_lo[r] = lo - pad;
+    fixed.run_hi[r] = hi + pad;
   }
   // (a non-finite object is left out of the solve: no chunk to search)
   fixed.runs.Build(fixed.finite ? std::span<const Eigen::Vector3d>(fixed.run_lo)
@@ -691,6 +752,8 @@ bool PenetrationSolver::KeepFixed(const CollisionObject& object, FixedObject& fi
     Eigen::Vector3d corner[3];
     for (int k = 0; k < 3; ++k) corner[k] = position(mesh.surface()(f, k));
     InflatedBounds(corner, fixed.face_lo[f], fixed.face_hi[f]);
+    fixed.face_lo[f] -= pad;
+    fixed.face_hi[f] += pad;
   }
   fixed.faces.Build(fixed.finite ? std::span<const Eigen::Vector3d>(fixed.face_lo)
                                  : std::span<const Eigen::Vector3d>(),
@@ -1887,12 +1950,14 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
   // (of triangles equally near, the lowest face: the result does not
   // depend on the order the search meets them in, the tree's)
   // face f with box [lo, hi]; corners() gives its corners
+  // (box_point: p in the frame of the box, the body frame of a framed
+  // object's kept boxes)
   auto test_face = [&](int f, const Eigen::Vector3d& lo, const Eigen::Vector3d& hi,
-                       auto&& corners) {
+                       const Eigen::Vector3d& box_point, auto&& corners) {
     // (a triangle whose box is farther than the best cannot be nearer: on
     // a coarse box pressed into a fine body, most queries test every one
     // of its large faces)
-    if (BoxDistance2(lo, hi, p) > best) return;
+    if (BoxDistance2(lo, hi, box_point) > best) return;
     if (exclude >= 0 &&
         (surface(f, 0) == exclude || surface(f, 1) == exclude || surface(f, 2) == exclude)) {
       return;
@@ -1908,7 +1973,7 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
   };
   auto test = [&](int index) {  // a triangle entry
     const TriangleEntry& entry = triangles_[index];
-    test_face(entry.face, entry.lo, entry.hi, [&] {
+    test_face(entry.face, entry.lo, entry.hi, p, [&] {
       const TriangleGeometry& triangle = triangle_geometry_[index];
       return std::array<Eigen::Vector3d, 3>{triangle.corner[0], triangle.corner[1],
                                             triangle.corner[2]};
@@ -1920,7 +1985,7 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
     for (int f = 0; f < object_entry_end_[b] - object_entry_begin_[b]; ++f) {
       const SmallTriangleGroup& group = groups[f / 4];
       const int lane = f % 4;
-      test_face(f, Lane(group.lo, lane), Lane(group.hi, lane), [&] {
+      test_face(f, Lane(group.lo, lane), Lane(group.hi, lane), p, [&] {
         return std::array<Eigen::Vector3d, 3>{x.row(surface(f, 0)).transpose(),
                                               x.row(surface(f, 1)).transpose(),
                                               x.row(surface(f, 2)).transpose()};
@@ -1928,14 +1993,17 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
     }
     return std::isfinite(best);
   }
-  // the object's box tree over all its triangles: kept, if it is fixed,
-  // or built by ComputeClosest (nearer boxes first, those farther than the
-  // best passed over); else every triangle
+  // the object's box tree over all its triangles: kept, if it is fixed or
+  // framed, or built by ComputeClosest (nearer boxes first, those farther
+  // than the best passed over); else every triangle
   if (fixed_[b].active) {
     const FixedObject& fixed = fixed_[b];
     const Positions& x = *objects[b].positions;
-    fixed.faces.Nearest(p, best, [&](int f) {
-      test_face(f, fixed.face_lo[f], fixed.face_hi[f], [&] {
+    // (framed: distances are the same in the body frame, and the kept
+    // boxes' growth covers the rounding of p taken there)
+    const Eigen::Vector3d q = fixed.ToBody(p);
+    fixed.faces.Nearest(q, best, [&](int f) {
+      test_face(f, fixed.face_lo[f], fixed.face_hi[f], q, [&] {
         return std::array<Eigen::Vector3d, 3>{x.row(surface(f, 0)).transpose(),
                                               x.row(surface(f, 1)).transpose(),
                                               x.row(surface(f, 2)).transpose()};

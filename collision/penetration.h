@@ -56,6 +56,13 @@ enum class DepthSource : std::uint8_t {
 const char* DepthMethodName(DepthMethod method);
 const char* DepthSourceName(DepthSource source);
 
+// A rigid motion: a point's world position is rotation * p + translation
+// for its position p in the body frame.
+struct RigidFrame {
+  Eigen::Matrix3d rotation = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d translation = Eigen::Vector3d::Zero();
+};
+
 // One object as the solver sees it: shared immutable topology and the current
 // positions (#V x 3, world frame, metres), which must outlive Solve().
 struct CollisionObject {
@@ -73,6 +80,18 @@ struct CollisionObject {
   // with the kept copy every solve: if they moved, the object is taken as
   // not fixed for that solve.)
   bool fixed = false;
+  // Optional (when not fixed), must outlive Solve(): the object moves
+  // rigidly, its positions are `frame` applied to body-frame positions that
+  // do not change from one solve to the next (same object index, mesh and
+  // positions storage), such as a proxy of a moving MuJoCo body. The solver
+  // then keeps a tree over the object's chunks in the body frame, as for a
+  // fixed object, and passes over only the chunks and faces near its
+  // partners, and over its positions once for its box. Results are the
+  // same as without the frame. The rotation must be orthonormal (to
+  // rounding), else the frame is not used. (A few vertices are compared
+  // with their kept body-frame positions every solve: if they moved by
+  // more than rounding, the object is solved without its frame that solve.)
+  const RigidFrame* frame = nullptr;
 };
 
 struct PenetrationResult {
@@ -126,6 +145,8 @@ struct PenetrationStats {
   // objects solved with what the solver kept of them (CollisionObject::fixed,
   // and they had not moved)
   int fixed_objects = 0;
+  // the same for objects with a CollisionObject::frame, moved rigidly
+  int framed_objects = 0;
   double max_depth = 0.0;
   double mean_depth = 0.0;
 };
@@ -243,19 +264,31 @@ class PenetrationSolver {
                                   // for the next layer (the first: listed in stage 2)
   };
 
-  // What the solver keeps of a fixed object (CollisionObject::fixed)
-  // between solves, and what a solve found in it: its box, a tree over its
-  // chunks' boxes (a chunk's box: that of its tets' corners), per chunk its
-  // surface faces (the faces of its tets, ascending), and a tree over its
-  // faces.
+  // What the solver keeps of a fixed object (CollisionObject::fixed) or one
+  // moving with a frame (CollisionObject::frame, "framed") between solves,
+  // and what a solve found in it: its box, a tree over its chunks' boxes (a
+  // chunk's box: that of its tets' corners), per chunk its surface faces
+  // (the faces of its tets, ascending), and a tree over its faces. A framed
+  // object's boxes are in its body frame, grown by `pad`.
   struct FixedObject {
     const TetMesh* mesh = nullptr;  // the object seen last (null: none)
     const Positions* positions = nullptr;
-    std::vector<int> sample_vertex;               // compared every solve
-    std::vector<Eigen::Vector3d> sample;          // their positions when last seen
-    bool kept = false;                            // what follows is of those positions
-    Eigen::Vector3d lo, hi;                       // box, before Inflate
-    bool finite = true;                           // every position is finite
+    bool framed = false;
+    std::vector<int> sample_vertex;       // compared every solve
+    std::vector<Eigen::Vector3d> sample;  // their positions (body frame if framed) when kept
+    bool kept = false;                    // what follows is of those positions
+    Eigen::Vector3d lo, hi;               // box, before Inflate (not framed)
+    bool finite = true;                   // every position is finite
+    // framed: this solve's frame; the largest body-frame coordinate (in
+    // magnitude); the growth of the kept boxes, which covers the rounding of
+    // positions taken into the body frame
+    Eigen::Matrix3d rotation;
+    Eigen::Vector3d translation;
+    double body_scale = 0.0, pad = 0.0;
+    // a world point in the frame of the kept boxes
+    Eigen::Vector3d ToBody(const Eigen::Vector3d& p) const {
+      return framed ? Eigen::Vector3d(rotation.transpose() * (p - translation)) : p;
+    }
     std::vector<Eigen::Vector3d> run_lo, run_hi;  // per chunk
     BoxTree runs;                                 // over the chunks' boxes
     std::vector<int> run_face_offset, run_faces;  // per chunk its surface faces
@@ -274,10 +307,10 @@ class PenetrationSolver {
     std::vector<int> classified, hashed;
     int outcode_offset = -1;
   };
-  // Whether a fixed object can use what is kept of it this solve: it can
-  // unless some of its sampled vertices moved since the last solve (then it
-  // is solved as not fixed, and kept again once it stays still); keeps it
-  // if it is not kept yet.
+  // Whether a fixed or framed object can use what is kept of it this solve:
+  // it can unless some of its sampled vertices moved since they were kept
+  // (then it is solved without, and kept again once it stays still, or
+  // rigid) or its frame is not a rotation; keeps it if it is not kept yet.
   static bool KeepFixed(const CollisionObject& object, FixedObject& fixed);
   void Prepare(std::span<const CollisionObject> objects);
   void FindCollidingPoints(std::span<const CollisionObject> objects);

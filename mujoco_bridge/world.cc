@@ -340,6 +340,8 @@ struct World::Proxy {
   // (more)
   std::array<double, 12> pose{};
   int placements = 0;
+  RigidFrame frame;  // the body's pose, as `positions` were computed at
+
   Eigen::VectorXd areas;
   double friction = 0.5;
 };
@@ -643,6 +645,8 @@ void World::UpdateProxies() {
     }
     proxy->pose = pose;
     proxy->placements = std::min(proxy->placements + 1, 2);
+    proxy->frame.rotation = X_WB.linear();
+    proxy->frame.translation = X_WB.translation();
   }
 }
 
@@ -704,10 +708,13 @@ void World::BuildCollisionObjects() {
         {&bodies_[i]->mesh(), &bodies_[i]->positions(), false, scene_.tetbodies[i].self_collide});
   }
   // a proxy placed once and never moved (a static body's) is fixed for
-  // every solver: its positions are those of any earlier solve
+  // every solver: its positions are those of any earlier solve; one that
+  // moves, moves rigidly with its body's frame (its mesh is in the body
+  // frame)
   for (const auto& proxy : proxies_) {
-    objects_.push_back(
-        {proxy->mesh.get(), &proxy->positions, true, false, /*fixed=*/proxy->placements == 1});
+    const bool fixed = proxy->placements == 1;
+    objects_.push_back({proxy->mesh.get(), &proxy->positions, true, false, fixed,
+                        fixed ? nullptr : &proxy->frame});
   }
 }
 
@@ -789,6 +796,7 @@ void World::CollectContacts() {
   const PenetrationStats& stats = solver_.stats();
   metrics_.penetration_ms += solver_.timings().total * 1e3;
   metrics_.penetration_points += stats.colliding;
+  metrics_.kept_proxies = stats.fixed_objects + stats.framed_objects;
   metrics_.fallback_points = stats.fallback;
   metrics_.unresolved_points = stats.unresolved;
   AddGeomContacts();

@@ -66,6 +66,9 @@ struct StepMetrics {
   // (penetration results; colliding_points adds the geom contacts)
   double penetration_ms = 0.0;
   int penetration_points = 0;
+  // proxies the penetration solver solved from what it kept of them: fixed
+  // (a static body's) or moving rigidly with their body's frame
+  int kept_proxies = 0;
   double deformable_ms = 0.0;
   double mujoco_ms = 0.0;
   double total_ms = 0.0;

@@ -41,30 +41,45 @@ namespace {
 // cell by cell: the coarser vertex grid). One thread: on several, a
 // thread's share of the work varies from solve to solve, and its buffers
 // grow until they hold its largest share. The same with the slab fixed
-// (CollisionObject::fixed): what is kept of it is kept on the first solve.
+// (CollisionObject::fixed): what is kept of it is kept on the first solve;
+// and with it moving with a frame (CollisionObject::frame).
 TEST(Allocation, WarmSolvesAllocateNothing) {
   testing::TestScene scene;
   scene.Add("box:size=0.05:res=6", {0, 0, 0});
   scene.Add("box:size=0.05:res=6", {0.07, 0.01, 0.0});
   scene.Add("sphere:size=0.03:res=1", {0.0, 0.0, 0.0});
-  scene.Add("box:size=0.5,0.5,0.05:res=20,20,1", {0, 0, -0.09}, /*rigid=*/true);
-  for (const auto& [method, cell_size, fixed] : {std::tuple{DepthMethod::kConsistent, 0.0, false},
-                                                 std::tuple{DepthMethod::kClosest, 0.0, false},
-                                                 std::tuple{DepthMethod::kConsistent, 0.002, false},
-                                                 std::tuple{DepthMethod::kConsistent, 0.0, true}}) {
-    scene.objects.back().fixed = fixed;  // (the slab: what is kept of it, kept once)
+  const int slab = scene.Add("box:size=0.5,0.5,0.05:res=20,20,1", {0, 0, -0.09}, /*rigid=*/true);
+  const Positions slab_start = *scene.positions[slab];
+  RigidFrame frame;
+  enum Slab { kPlain, kFixed, kFramed };
+  for (const auto& [method, cell_size, kept] :
+       {std::tuple{DepthMethod::kConsistent, 0.0, kPlain},
+        std::tuple{DepthMethod::kClosest, 0.0, kPlain},
+        std::tuple{DepthMethod::kConsistent, 0.002, kPlain},
+        std::tuple{DepthMethod::kConsistent, 0.0, kFixed},
+        std::tuple{DepthMethod::kClosest, 0.0, kFramed}}) {
+    // (the slab: what is kept of it, kept once)
+    scene.objects[slab].fixed = kept == kFixed;
+    scene.objects[slab].frame = kept == kFramed ? &frame : nullptr;
     PenetrationOptions options;
     options.method = method;
     options.cell_size = cell_size;
     options.num_threads = 1;
     PenetrationSolver solver(options);
-    solver.Solve(scene.objects);
-    solver.Solve(scene.objects);
+    // (framed: the slab moves up a little every solve)
+    auto solve = [&](int k) {
+      frame.translation.z() = kept == kFramed ? 1e-4 * k : 0.0;
+      *scene.positions[slab] = slab_start.rowwise() + frame.translation.transpose();
+      solver.Solve(scene.objects);
+    };
+    solve(0);
+    solve(1);
     const long before = allocations.load();
-    for (int solve = 0; solve < 3; ++solve) solver.Solve(scene.objects);
-    EXPECT_EQ(allocations.load() - before, 0)
-        << DepthMethodName(method) << " " << cell_size << (fixed ? " fixed" : "");
-    EXPECT_EQ(solver.stats().fixed_objects, fixed ? 1 : 0);
+    for (int k = 2; k < 5; ++k) solve(k);
+    EXPECT_EQ(allocations.load() - before, 0) << DepthMethodName(method) << " " << cell_size
+                                              << " " << kept;
+    EXPECT_EQ(solver.stats().fixed_objects, kept == kFixed ? 1 : 0);
+    EXPECT_EQ(solver.stats().framed_objects, kept == kFramed ? 1 : 0);
     EXPECT_GT(solver.results().size(), 100u);
     if (method == DepthMethod::kConsistent) {
       EXPECT_GT(solver.stats().fallback, 0);

@@ -844,11 +844,20 @@ TEST(Determinism, ReusedSolverMatchesANewOne) {
 // methods on one and two threads. An object flagged fixed that moves
 // anyway (`moved_at`: shifted in place before that solve) must be seen to
 // move and solved as not fixed, then kept again.
-void ExpectFixedSolvedAsNotFixed(TestScene& scene, const std::vector<int>& fixed, int min_results,
-                                 int moved_at = -1) {
+//
+// Framed (CollisionObject::frame): the kept objects turn and move rigidly
+// instead, their positions the frame applied to their first ones, and the
+// same holds; at `moved_at` they are shifted without their frame saying so.
+enum class Kept { kFixed, kFramed };
+void ExpectKeptSolvedAsNotKept(TestScene& scene, const std::vector<int>& kept, int min_results,
+                               int moved_at = -1, Kept how = Kept::kFixed) {
   constexpr int kSolves = 8;
   std::vector<CollisionObject> flagged = scene.objects;
-  for (int o : fixed) flagged[o].fixed = true;
+  std::vector<RigidFrame> frames(scene.objects.size());
+  for (int o : kept) {
+    flagged[o].fixed = how == Kept::kFixed;
+    if (how == Kept::kFramed) flagged[o].frame = &frames[o];
+  }
   const std::vector<Positions> start = [&] {
     std::vector<Positions> x;
     for (const auto& positions : scene.positions) x.push_back(*positions);
@@ -857,8 +866,12 @@ void ExpectFixedSolvedAsNotFixed(TestScene& scene, const std::vector<int>& fixed
   std::mt19937 rng(5);
   std::uniform_real_distribution<double> speed(-0.004, 0.004);  // metres a solve
   std::vector<Eigen::RowVector3d> velocity;
+  std::vector<Eigen::Vector3d> axis;
   for (size_t o = 0; o < scene.objects.size(); ++o) {
     velocity.emplace_back(speed(rng), speed(rng), speed(rng));
+  }
+  for (size_t o = 0; o < scene.objects.size(); ++o) {
+    axis.push_back(Eigen::Vector3d(speed(rng), speed(rng), speed(rng)).normalized());
   }
   for (DepthMethod method : {DepthMethod::kConsistent, DepthMethod::kClosest}) {
     for (int threads : {1, 2}) {
@@ -873,19 +886,29 @@ void ExpectFixedSolvedAsNotFixed(TestScene& scene, const std::vector<int>& fixed
                                  std::to_string(threads) + " threads, solve " +
                                  std::to_string(solve);
         for (size_t o = 0; o < scene.objects.size(); ++o) {
-          if (std::find(fixed.begin(), fixed.end(), o) != fixed.end()) continue;
-          *scene.positions[o] = start[o].rowwise() + velocity[o] * solve;
+          const bool is_kept = std::find(kept.begin(), kept.end(), o) != kept.end();
+          if (!is_kept) {
+            *scene.positions[o] = start[o].rowwise() + velocity[o] * solve;
+          } else if (how == Kept::kFixed) {
+            *scene.positions[o] = start[o];  // (back in place after moved_at)
+          } else {
+            // turning about its first centroid (0.01 rad a solve) as it moves
+            const Eigen::Vector3d centre = start[o].colwise().mean().transpose();
+            RigidFrame& frame = frames[o];
+            frame.rotation = Eigen::AngleAxisd(0.01 * solve, axis[o]).toRotationMatrix();
+            frame.translation = centre - frame.rotation * centre + velocity[o].transpose() * solve;
+            *scene.positions[o] =
+                (start[o] * frame.rotation.transpose()).rowwise() + frame.translation.transpose();
+          }
         }
-        if (solve == moved_at) *scene.positions[fixed[0]] = start[fixed[0]].array() + 1e-4;
-        if (solve == moved_at + 1 && moved_at >= 0) {
-          // (moved back in place: kept again from the next solve)
-          *scene.positions[fixed[0]] = start[fixed[0]];
-        }
+        const int moved = solve == moved_at || (moved_at >= 0 && solve == moved_at + 1);
+        if (solve == moved_at) *scene.positions[kept[0]] = scene.positions[kept[0]]->array() + 1e-4;
         const std::vector<PenetrationResult> expected = without.Solve(scene.objects);
         ExpectSameResults(expected, with_flag.Solve(flagged), what);
-        const int moved = solve == moved_at || (moved_at >= 0 && solve == moved_at + 1);
-        EXPECT_EQ(with_flag.stats().fixed_objects, static_cast<int>(fixed.size()) - moved) << what;
-        EXPECT_EQ(without.stats().fixed_objects, 0) << what;
+        const int num_kept = static_cast<int>(kept.size()) - moved;
+        EXPECT_EQ(with_flag.stats().fixed_objects, how == Kept::kFixed ? num_kept : 0) << what;
+        EXPECT_EQ(with_flag.stats().framed_objects, how == Kept::kFramed ? num_kept : 0) << what;
+        EXPECT_EQ(without.stats().fixed_objects + without.stats().framed_objects, 0) << what;
         results += static_cast<int>(expected.size());
       }
       EXPECT_GT(results, min_results) << DepthMethodName(method) << ", " << threads;
@@ -894,7 +917,7 @@ void ExpectFixedSolvedAsNotFixed(TestScene& scene, const std::vector<int>& fixed
   }
 }
 
-TEST(FixedObjects, SameResultsAsNotFixed) {
+void ExpectKeptSolvedAsNotKept(Kept how) {
   {
     SCOPED_TRACE("bodies on a fine slab");
     TestScene scene;
@@ -910,12 +933,12 @@ TEST(FixedObjects, SameResultsAsNotFixed) {
     }
     scene.Add("sphere:size=0.01:res=1", {0.05, 0.05, 0.0});  // deep in it: fallback values
     scene.Add("sphere:size=0.02:res=1", {0.5, 0.5, 0.5});    // far from it
-    ExpectFixedSolvedAsNotFixed(scene, {0}, 2000, /*moved_at=*/4);
+    ExpectKeptSolvedAsNotKept(scene, {0}, 1500, /*moved_at=*/4, how);
   }
   for (int trial : {0, 1}) {
     SCOPED_TRACE("crowded scene " + std::to_string(trial));  // (its box: rigid in trial 1)
     TestScene scene = CrowdedScene(trial);
-    ExpectFixedSolvedAsNotFixed(scene, {0}, 500);
+    ExpectKeptSolvedAsNotKept(scene, {0}, 500, -1, how);
   }
   {
     SCOPED_TRACE("a fixed self-colliding slab folded into itself, and two fixed bodies");
@@ -930,7 +953,7 @@ TEST(FixedObjects, SameResultsAsNotFixed) {
     scene.Add(TetMesh::Build(MakeShape("box:size=0.03,0.03,0.03:res=6,6,6")),
               Pose({-0.03, 0, 0.022}), /*rigid=*/true);
     scene.Add("sphere:size=0.02:res=2", {0.0, 0.0, -0.02});
-    ExpectFixedSolvedAsNotFixed(scene, {slab, 2}, 1000);
+    ExpectKeptSolvedAsNotKept(scene, {slab, 2}, 1000, -1, how);
   }
   {
     SCOPED_TRACE("a fixed body with vertices in no tetrahedron");
@@ -945,15 +968,60 @@ TEST(FixedObjects, SameResultsAsNotFixed) {
     scene.Add(TetMesh::Build(std::move(raw), options), Pose({0, 0, 0}), /*rigid=*/true);
     ASSERT_EQ(scene.meshes[0]->num_vertices(), n + 2);
     scene.Add("sphere:size=0.02:res=2", {0.0, 0.0, 0.025});
-    ExpectFixedSolvedAsNotFixed(scene, {0}, 20);
+    ExpectKeptSolvedAsNotKept(scene, {0}, 20, -1, how);
     PenetrationSolver solver;
     std::vector<CollisionObject> flagged = scene.objects;
-    flagged[0].fixed = true;
+    const RigidFrame identity;
+    flagged[0].fixed = how == Kept::kFixed;
+    if (how == Kept::kFramed) flagged[0].frame = &identity;
     bool loose_found = false;
     for (const PenetrationResult& r : solver.Solve(flagged))
       loose_found |= r.object == 0 && r.vertex == n;
     EXPECT_TRUE(loose_found);
   }
+}
+
+TEST(FixedObjects, SameResultsAsNotFixed) {
+  ExpectKeptSolvedAsNotKept(Kept::kFixed);
+}
+
+TEST(FramedObjects, SameResultsAsWithoutFrame) {
+  ExpectKeptSolvedAsNotKept(Kept::kFramed);
+}
+
+// A framed body carried far from where it was kept (the rounding of its
+// positions grows with their magnitude, and it is kept anew), then given a
+// frame that is not a rotation (a scaled one: the frame is not used), is
+// solved as without its frame, bit for bit.
+TEST(FramedObjects, CarriedFarAndNotARotation) {
+  TestScene scene;
+  scene.Add(TetMesh::Build(MakeShape("box:size=0.1,0.1,0.02:res=20,20,4")), Pose({0, 0, 0}),
+            /*rigid=*/true);
+  scene.Add("sphere:size=0.02:res=2", {0.01, 0.02, 0.03});
+  std::vector<Positions> start;
+  for (const auto& x : scene.positions) start.push_back(*x);
+  RigidFrame frame;
+  std::vector<CollisionObject> framed = scene.objects;
+  framed[0].frame = &frame;
+  PenetrationSolver with_frame, without;
+  const double far[] = {0.0, 1.0, 1e3, 1e3, 1e6, 1e6, 0.0};
+  for (int solve = 0; solve < static_cast<int>(std::size(far)); ++solve) {
+    frame.rotation =
+        Eigen::AngleAxisd(0.3 * solve, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
+    frame.translation = Eigen::Vector3d(1.0, -2.0, 0.5) * far[solve];
+    for (int o : {0, 1}) {
+      *scene.positions[o] =
+          (start[o] * frame.rotation.transpose()).rowwise() + frame.translation.transpose();
+    }
+    const std::vector<PenetrationResult> expected = without.Solve(scene.objects);
+    ASSERT_GT(expected.size(), 10u);
+    ExpectSameResults(expected, with_frame.Solve(framed), "solve " + std::to_string(solve));
+    EXPECT_EQ(with_frame.stats().framed_objects, 1) << solve;
+  }
+  frame.rotation *= 1.01;  // (positions as they were: only the frame is wrong)
+  const std::vector<PenetrationResult> expected = without.Solve(scene.objects);
+  ExpectSameResults(expected, with_frame.Solve(framed), "scaled frame");
+  EXPECT_EQ(with_frame.stats().framed_objects, 0);
 }
 
 // A ball that pokes through the top face of a fixed box and then is

@@ -223,7 +223,8 @@ TEST(Coupling, CubeRestsOnAFreeBoxWithoutDrift) {
 // the penetration solver as fixed; a proxy of a moving body (the crate) is
 // placed every step and is not. The table's proxy stays where its body is,
 // also after the user moves the body in MuJoCo's model (then it is placed
-// again, and no longer fixed), and a soft cube comes to rest on it.
+// again, and no longer fixed), and a soft cube comes to rest on it. The
+// crate's proxy moves with its body's frame, which the solver uses.
 TEST(Coupling, StaticProxyIsFixedAndFollowsItsBody) {
   TempDir dir;
   const std::string path = dir.Write("table.xml", R"(
@@ -272,8 +273,23 @@ TEST(Coupling, StaticProxyIsFixedAndFollowsItsBody) {
     ASSERT_EQ(world->metrics().status, StepStatus::kOk) << world->metrics().message;
     contact_steps += world->metrics().colliding_points > 0;
     EXPECT_TRUE(world->collision_objects()[table].fixed) << "step " << s;
+    EXPECT_EQ(world->collision_objects()[table].frame, nullptr) << "step " << s;
     if (s > 0) {
       EXPECT_FALSE(world->collision_objects()[crate].fixed) << "step " << s;
+      const RigidFrame* frame = world->collision_objects()[crate].frame;
+      ASSERT_NE(frame, nullptr) << "step " << s;
+      // (the frame of its positions: the body's pose when they were placed)
+      const CollisionObject& object = world->collision_objects()[crate];
+      double error = 0.0;
+      for (int v = 0; v < object.mesh->num_vertices(); ++v) {
+        const Eigen::Vector3d rest = object.mesh->positions().row(v).transpose();
+        const Eigen::Vector3d x = object.positions->row(v).transpose();
+        error = std::max(error, (x - frame->rotation * rest - frame->translation).norm());
+      }
+      EXPECT_LT(error, 1e-12) << "step " << s;
+      // (both solved from what the solver kept: the table fixed, the crate
+      // moving with its frame)
+      EXPECT_EQ(world->metrics().kept_proxies, 2) << "step " << s;
     }
   }
   expect_placed(table, table_body);
@@ -286,6 +302,7 @@ TEST(Coupling, StaticProxyIsFixedAndFollowsItsBody) {
   world->mutable_mj_model()->body_pos[3 * table_body + 2] += 0.01;
   for (int s = 0; s < 5; ++s) world->Step();
   EXPECT_FALSE(world->collision_objects()[table].fixed);
+  EXPECT_NE(world->collision_objects()[table].frame, nullptr);
   EXPECT_NEAR(world->RigidBodyPosition(table_body).z(), 0.06, 1e-12);
   expect_placed(table, table_body);
 }
