@@ -8,6 +8,10 @@
 #include <algorithm>
 #include <cmath>
 
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
 namespace tetcosim {
 
 // A point is inside a tetrahedron when its barycentric coordinates are all
@@ -161,11 +165,22 @@ bool SmoothNormal(const Eigen::Vector3d& n0, const Eigen::Vector3d& n1, const Ei
                                                   const Eigen::Vector3d& p) {
   // (Eigen's (lo - p).cwiseMax(p - hi).cwiseMax(0).squaredNorm(), the same
   // operations in the same order, written out and always inlined: once
-  // penetration.cc grew, g++ stopped inlining it into the box tree's
-  // searches, and closest features took 10% more instructions)
+  // penetration.cc grew, g++ stopped inlining Eigen's into the box tree's
+  // searches, and closest features took 10% more instructions; with SSE2,
+  // x and y side by side, as Eigen did: written out one by one, 6% more)
+#if defined(__SSE2__)
+  const __m128d lo_xy = _mm_loadu_pd(lo.data()), hi_xy = _mm_loadu_pd(hi.data());
+  const __m128d p_xy = _mm_loadu_pd(p.data());
+  const __m128d d_xy =
+      _mm_max_pd(_mm_max_pd(_mm_sub_pd(lo_xy, p_xy), _mm_sub_pd(p_xy, hi_xy)), _mm_setzero_pd());
+  const __m128d d2_xy = _mm_mul_pd(d_xy, d_xy);
+  const double d_z = std::max(std::max(lo[2] - p[2], p[2] - hi[2]), 0.0);
+  return (_mm_cvtsd_f64(d2_xy) + _mm_cvtsd_f64(_mm_unpackhi_pd(d2_xy, d2_xy))) + d_z * d_z;
+#else
   double d[3];
   for (int k = 0; k < 3; ++k) d[k] = std::max(std::max(lo[k] - p[k], p[k] - hi[k]), 0.0);
   return (d[0] * d[0] + d[1] * d[1]) + d[2] * d[2];
+#endif
 }
 
 // The point of the triangle (a, b, c) nearest to p (exact, by Voronoi regions
