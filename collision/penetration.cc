@@ -340,13 +340,13 @@ void ForEachZeroByte(const std::uint8_t* bytes, int begin, int end, Visit&& visi
   }
 }
 
-// A fixed object's vertices beyond every side of its search box: those of
+// A kept object's vertices beyond every side of its search box: those of
 // the chunks that stage 1 passes over (geometrically impossible, and so
 // never taken for a real outcode)
 constexpr std::uint8_t kBeyondEverySide = 0x3F;
 // a fixed or framed object's vertices compared every solve
 // (CollisionObject::fixed, ::frame)
-constexpr int kFixedSamples = 16;
+constexpr int kKeptSamples = 16;
 // A framed object's positions taken into its body frame differ from one
 // solve to the next by rounding, a few ulp of the coordinates' magnitude
 // (body-frame and translation): a sample may differ by kFrameRounding
@@ -496,23 +496,23 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
   object_hi_.resize(num_objects);
   Eigen::Vector3d mean = Eigen::Vector3d::Zero();  // (of the boxes' centres, left out aside)
   int num_in = 0;
-  fixed_.resize(num_objects);
-  any_fixed_ = false;
+  kept_.resize(num_objects);
+  any_kept_ = false;
   for (int o = 0; o < num_objects; ++o) {
-    FixedObject& fixed = fixed_[o];
+    KeptObject& kept = kept_[o];
     const bool keepable = objects[o].fixed || objects[o].frame != nullptr;
-    fixed.active = keepable && KeepFixed(objects[o], fixed);
-    if (!keepable) fixed.mesh = nullptr;           // (seen moving: keep nothing)
-    if (!fixed.active) fixed.outcode_offset = -1;  // (its outcodes: all written)
-    any_fixed_ |= fixed.active;
-    stats_.fixed_objects += fixed.active && !fixed.framed;
-    stats_.framed_objects += fixed.active && fixed.framed;
+    kept.active = keepable && KeepObject(objects[o], kept);
+    if (!keepable) kept.mesh = nullptr;          // (seen moving: keep nothing)
+    if (!kept.active) kept.outcode_offset = -1;  // (its outcodes: all written)
+    any_kept_ |= kept.active;
+    stats_.fixed_objects += kept.active && !kept.framed;
+    stats_.framed_objects += kept.active && kept.framed;
     Eigen::Vector3d lo, hi;
     bool finite;
-    if (fixed.active && !fixed.framed) {
-      lo = fixed.lo;
-      hi = fixed.hi;
-      finite = fixed.finite;
+    if (kept.active && !kept.framed) {
+      lo = kept.lo;
+      hi = kept.hi;
+      finite = kept.finite;
     } else {
       finite = RawBounds(*objects[o].positions, lo, hi);
     }
@@ -606,36 +606,38 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
     search_lo_[b] = search_lo_[b].cwiseMin(partner.lo);
     search_hi_[b] = search_hi_[b].cwiseMax(partner.hi);
   }
-  if (!any_fixed_) return;
-  // a fixed object's chunks that stage 1 searches: those whose box meets
-  // its search box, found in its tree. (Exactly those that it would search
-  // without the tree: a chunk's vertices all lie beyond one side of the
-  // search box just when the chunk's box does not meet it.)
+  if (!any_kept_) return;
+  // a kept object's chunks that stage 1 searches: those whose box meets
+  // its search box, found in its tree. (A fixed object's: exactly those
+  // that have a vertex in the search box, as a chunk's vertices all lie
+  // beyond one side of the search box just when the chunk's box does not
+  // meet it; a framed object's: a few more, its search box taken into the
+  // body frame and grown.)
   search_chunks_.clear();
   for (int o = 0; o < num_objects; ++o) {
-    FixedObject& fixed = fixed_[o];
-    if (!fixed.active) {
+    KeptObject& kept = kept_[o];
+    if (!kept.active) {
       for (int c = chunk_offset_[o]; c < chunk_offset_[o + 1]; ++c) search_chunks_.push_back(c);
       continue;
     }
-    fixed.searched.clear();
+    kept.searched.clear();
     Eigen::Vector3d lo = search_lo_[o], hi = search_hi_[o];
-    if (fixed.framed && (lo.array() <= hi.array()).all()) {
+    if (kept.framed && (lo.array() <= hi.array()).all()) {
       // the search box in the body frame: the box around it there, grown
       // as the kept boxes are
-      const Eigen::Vector3d centre = fixed.ToBody(0.5 * (lo + hi));
-      const Eigen::Vector3d half = fixed.rotation.transpose().cwiseAbs() * (0.5 * (hi - lo)) +
-                                   Eigen::Vector3d::Constant(fixed.pad);
+      const Eigen::Vector3d centre = kept.ToBody(0.5 * (lo + hi));
+      const Eigen::Vector3d half = kept.rotation.transpose().cwiseAbs() * (0.5 * (hi - lo)) +
+                                   Eigen::Vector3d::Constant(kept.pad);
       lo = centre - half;
       hi = centre + half;
     }
-    fixed.runs.Overlapping(lo, hi, [&](int run) { fixed.searched.push_back(run); });
-    std::sort(fixed.searched.begin(), fixed.searched.end());
-    for (int run : fixed.searched) search_chunks_.push_back(chunk_offset_[o] + run);
+    kept.runs.Overlapping(lo, hi, [&](int run) { kept.searched.push_back(run); });
+    std::sort(kept.searched.begin(), kept.searched.end());
+    for (int run : kept.searched) search_chunks_.push_back(chunk_offset_[o] + run);
   }
 }
 
-bool PenetrationSolver::KeepFixed(const CollisionObject& object, FixedObject& fixed) {
+bool PenetrationSolver::KeepObject(const CollisionObject& object, KeptObject& kept) {
   const TetMesh& mesh = *object.mesh;
   const Positions& x = *object.positions;
   const int num_vertices = mesh.num_vertices();
@@ -647,71 +649,71 @@ bool PenetrationSolver::KeepFixed(const CollisionObject& object, FixedObject& fi
             .cwiseAbs()
             .maxCoeff();
     if (!(off_identity <= kRotationTolerance) || !frame.translation.allFinite()) {
-      fixed.mesh = nullptr;  // (not a rotation: keep nothing)
+      kept.mesh = nullptr;  // (not a rotation: keep nothing)
       return false;
     }
-    fixed.rotation = frame.rotation;
-    fixed.translation = frame.translation;
+    kept.rotation = frame.rotation;
+    kept.translation = frame.translation;
   }
   const bool seen =
-      fixed.mesh == object.mesh && fixed.positions == object.positions && fixed.framed == framed;
-  fixed.framed = framed;
+      kept.mesh == object.mesh && kept.positions == object.positions && kept.framed == framed;
+  kept.framed = framed;
   // a vertex's position, in the body frame if framed
-  auto position = [&](int v) { return fixed.ToBody(x.row(v).transpose()); };
+  auto position = [&](int v) { return kept.ToBody(x.row(v).transpose()); };
   if (seen) {
     // (the rounding of the samples as kept, and as now)
     const double magnitude =
-        std::max(fixed.pad / kFramePad, fixed.body_scale + fixed.translation.cwiseAbs().maxCoeff());
+        std::max(kept.pad / kFramePad, kept.body_scale + kept.translation.cwiseAbs().maxCoeff());
     const double tolerance = framed ? kFrameRounding * magnitude : 0.0;
     bool still = true;
-    for (size_t i = 0; i < fixed.sample_vertex.size(); ++i) {
-      const Eigen::Vector3d p = position(fixed.sample_vertex[i]);
-      still &= framed ? (p - fixed.sample[i]).cwiseAbs().maxCoeff() <= tolerance
-                      : std::memcmp(p.data(), fixed.sample[i].data(), sizeof(double) * 3) == 0;
+    for (size_t i = 0; i < kept.sample_vertex.size(); ++i) {
+      const Eigen::Vector3d p = position(kept.sample_vertex[i]);
+      still &= framed ? (p - kept.sample[i]).cwiseAbs().maxCoeff() <= tolerance
+                      : std::memcmp(p.data(), kept.sample[i].data(), sizeof(double) * 3) == 0;
     }
-    if (still && fixed.kept && 8.0 * tolerance <= fixed.pad) return true;
-    for (size_t i = 0; i < fixed.sample_vertex.size(); ++i) {
-      fixed.sample[i] = position(fixed.sample_vertex[i]);
+    if (still && kept.built && 8.0 * tolerance <= kept.pad) return true;
+    for (size_t i = 0; i < kept.sample_vertex.size(); ++i) {
+      kept.sample[i] = position(kept.sample_vertex[i]);
     }
     if (!still) {
-      fixed.kept = false;
+      kept.built = false;
       return false;
     }
   } else {
-    fixed.mesh = object.mesh;
-    fixed.positions = object.positions;
-    const int num_samples = std::min(kFixedSamples, num_vertices);
-    fixed.sample_vertex.resize(num_samples);
-    fixed.sample.resize(num_samples);
+    kept.mesh = object.mesh;
+    kept.positions = object.positions;
+    const int num_samples = std::min(kKeptSamples, num_vertices);
+    kept.sample_vertex.resize(num_samples);
+    kept.sample.resize(num_samples);
     for (int i = 0; i < num_samples; ++i) {
       // spread over the numbering, the last vertex among them
-      fixed.sample_vertex[i] =
+      kept.sample_vertex[i] =
           static_cast<int>(static_cast<long>(num_vertices - 1) * (i + 1) / num_samples);
-      fixed.sample[i] = position(fixed.sample_vertex[i]);
+      kept.sample[i] = position(kept.sample_vertex[i]);
     }
   }
   // keep it
-  fixed.kept = true;
-  fixed.outcode_offset = -1;  // (another object's, or the outcodes written meanwhile)
-  fixed.finite = RawBounds(x, fixed.lo, fixed.hi);
-  fixed.pad = 0.0;
+  kept.built = true;
+  kept.outcode_offset = -1;  // (another object's, or the outcodes written meanwhile)
+  kept.finite = RawBounds(x, kept.lo, kept.hi);
+  kept.pad = 0.0;
   if (framed) {
-    if (!fixed.finite) {  // (left out this solve; not kept, as its positions may change)
-      fixed.mesh = nullptr;
+    if (!kept.finite) {  // (left out this solve; not kept, as its positions may change)
+      kept.mesh = nullptr;
       return false;
     }
-    fixed.body_scale = 0.0;
+    kept.body_scale = 0.0;
     for (int v = 0; v < num_vertices; ++v) {
-      fixed.body_scale = std::max(fixed.body_scale, position(v).cwiseAbs().maxCoeff());
+      kept.body_scale = std::max(kept.body_scale, position(v).cwiseAbs().maxCoeff());
     }
-    fixed.pad = kFramePad * (fixed.body_scale + fixed.translation.cwiseAbs().maxCoeff());
+    kept.pad = kFramePad * (kept.body_scale + kept.translation.cwiseAbs().maxCoeff());
   }
-  const Eigen::Vector3d pad = Eigen::Vector3d::Constant(fixed.pad);
+  const Eigen::Vector3d pad = Eigen::Vector3d::Constant(kept.pad);
   const int num_runs = mesh.num_spatial_runs();
   const std::vector<int>& run_vertices = mesh.spatial_run_vertices();
   const std::vector<int>& run_offsets = mesh.spatial_run_vertex_offsets();
-  fixed.run_lo.resize(num_runs);
-  fixed.run_hi.resize(num_runs);
+  kept.run_lo.resize(num_runs);
+  kept.run_hi.resize(num_runs);
   std::vector<char> in_run(num_vertices, 0);
   for (int r = 0; r < num_runs; ++r) {
     Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
@@ -721,17 +723,17 @@ bool PenetrationSolver::KeepFixed(const CollisionObject& object, FixedObject& fi
       hi = hi.cwiseMax(position(run_vertices[i]));
       in_run[run_vertices[i]] = 1;
     }
-    fixed.run_lo[r] = lo - pad;
-    fixed.run_hi[r] = hi + pad;
+    kept.run_lo[r] = lo - pad;
+    kept.run_hi[r] = hi + pad;
   }
   // (a non-finite object is left out of the solve: no chunk to search)
-  fixed.runs.Build(fixed.finite ? std::span<const Eigen::Vector3d>(fixed.run_lo)
-                                : std::span<const Eigen::Vector3d>(),
-                   fixed.finite ? std::span<const Eigen::Vector3d>(fixed.run_hi)
-                                : std::span<const Eigen::Vector3d>());
-  fixed.loose_vertices.clear();
+  kept.runs.Build(kept.finite ? std::span<const Eigen::Vector3d>(kept.run_lo)
+                              : std::span<const Eigen::Vector3d>(),
+                  kept.finite ? std::span<const Eigen::Vector3d>(kept.run_hi)
+                              : std::span<const Eigen::Vector3d>());
+  kept.loose_vertices.clear();
   for (int v = 0; v < num_vertices; ++v) {
-    if (!in_run[v]) fixed.loose_vertices.push_back(v);
+    if (!in_run[v]) kept.loose_vertices.push_back(v);
   }
   // each surface face in the chunk of its tet (the last chunk also takes
   // the remainder of the spatial order)
@@ -740,25 +742,25 @@ bool PenetrationSolver::KeepFixed(const CollisionObject& object, FixedObject& fi
     tet_run[mesh.spatial_tet_order()[n]] = std::min(n / kChunkTets, num_runs - 1);
   }
   const int num_faces = static_cast<int>(mesh.surface().rows());
-  fixed.run_face_offset.assign(num_runs + 1, 0);
-  for (int f = 0; f < num_faces; ++f) ++fixed.run_face_offset[tet_run[mesh.surface_tet()[f]] + 1];
-  for (int r = 0; r < num_runs; ++r) fixed.run_face_offset[r + 1] += fixed.run_face_offset[r];
-  fixed.run_faces.resize(num_faces);
-  std::vector<int> next(fixed.run_face_offset.begin(), fixed.run_face_offset.end() - 1);
-  for (int f = 0; f < num_faces; ++f) fixed.run_faces[next[tet_run[mesh.surface_tet()[f]]]++] = f;
-  fixed.face_lo.resize(num_faces);
-  fixed.face_hi.resize(num_faces);
-  for (int f = 0; f < num_faces && fixed.finite; ++f) {
+  kept.run_face_offset.assign(num_runs + 1, 0);
+  for (int f = 0; f < num_faces; ++f) ++kept.run_face_offset[tet_run[mesh.surface_tet()[f]] + 1];
+  for (int r = 0; r < num_runs; ++r) kept.run_face_offset[r + 1] += kept.run_face_offset[r];
+  kept.run_faces.resize(num_faces);
+  std::vector<int> next(kept.run_face_offset.begin(), kept.run_face_offset.end() - 1);
+  for (int f = 0; f < num_faces; ++f) kept.run_faces[next[tet_run[mesh.surface_tet()[f]]]++] = f;
+  kept.face_lo.resize(num_faces);
+  kept.face_hi.resize(num_faces);
+  for (int f = 0; f < num_faces && kept.finite; ++f) {
     Eigen::Vector3d corner[3];
     for (int k = 0; k < 3; ++k) corner[k] = position(mesh.surface()(f, k));
-    InflatedBounds(corner, fixed.face_lo[f], fixed.face_hi[f]);
-    fixed.face_lo[f] -= pad;
-    fixed.face_hi[f] += pad;
+    InflatedBounds(corner, kept.face_lo[f], kept.face_hi[f]);
+    kept.face_lo[f] -= pad;
+    kept.face_hi[f] += pad;
   }
-  fixed.faces.Build(fixed.finite ? std::span<const Eigen::Vector3d>(fixed.face_lo)
-                                 : std::span<const Eigen::Vector3d>(),
-                    fixed.finite ? std::span<const Eigen::Vector3d>(fixed.face_hi)
-                                 : std::span<const Eigen::Vector3d>());
+  kept.faces.Build(kept.finite ? std::span<const Eigen::Vector3d>(kept.face_lo)
+                               : std::span<const Eigen::Vector3d>(),
+                   kept.finite ? std::span<const Eigen::Vector3d>(kept.face_hi)
+                               : std::span<const Eigen::Vector3d>());
   return true;
 }
 
@@ -773,7 +775,7 @@ void PenetrationSolver::FindCollidingPoints(std::span<const CollisionObject> obj
   ParallelFor(ThreadsFor(num_threads, num_blocks, 4), 0, num_blocks, [&](int block) {
     ClassifyVertices(block * kVertexBlock, std::min(num_vertices, (block + 1) * kVertexBlock));
   });
-  ClassifyFixedVertices();
+  ClassifyKeptVertices();
   BuildVertexHash(num_threads);
   timings_.hash += SecondsSince(start);
 
@@ -803,7 +805,7 @@ void PenetrationSolver::FindCollidingPointsAndHashSurfaces(std::span<const Colli
   surface_list_.assign(partnered_.begin(), partnered_.end());
   const int num_surfaces = static_cast<int>(surface_list_.size());
   BeginVertexHash();
-  ClassifyFixedVertices();  // (before the surfaces, which read the outcodes)
+  ClassifyKeptVertices();  // (before the surfaces, which read the outcodes)
   PlaceSurfaces(objects, /*full=*/false);
   const int num_chunks = BeginSearch(objects, threads);
   std::atomic<bool> hash_built = false;
@@ -853,7 +855,7 @@ void PenetrationSolver::ClassifyVertices(int begin, int end) {
     const int o = vertex_object_[g];
     const int offset = vertex_offset_[o];
     const int stop = std::min(end, vertex_offset_[o + 1]);
-    if (fixed_[o].active) {  // (ClassifyFixedVertices)
+    if (kept_[o].active) {  // (ClassifyKeptVertices)
       g = stop;
       continue;
     }
@@ -870,46 +872,46 @@ void PenetrationSolver::ClassifyVertices(int begin, int end) {
   }
 }
 
-void PenetrationSolver::ClassifyFixedVertices() {
-  if (!any_fixed_) return;
-  const int num_objects = static_cast<int>(fixed_.size());
+void PenetrationSolver::ClassifyKeptVertices() {
+  if (!any_kept_) return;
+  const int num_objects = static_cast<int>(kept_.size());
   for (int o = 0; o < num_objects; ++o) {
-    FixedObject& fixed = fixed_[o];
-    if (!fixed.active) continue;
+    KeptObject& kept = kept_[o];
+    if (!kept.active) continue;
     const int offset = vertex_offset_[o];
     std::uint8_t* outcode = vertex_outcode_.data() + offset;
     Eigen::Vector3i* cell = vertex_cell_.data() + offset;
-    // (all set once while the object stays fixed and in its place among the
+    // (all set once while the object stays kept and in its place among the
     // objects; then only those classified in the last solve are reset)
-    if (fixed.outcode_offset != offset) {
+    if (kept.outcode_offset != offset) {
       std::fill(outcode, outcode + (vertex_offset_[o + 1] - offset), kBeyondEverySide);
-      fixed.outcode_offset = offset;
+      kept.outcode_offset = offset;
     } else {
-      for (int v : fixed.classified) outcode[v] = kBeyondEverySide;
+      for (int v : kept.classified) outcode[v] = kBeyondEverySide;
     }
-    fixed.classified.clear();
-    fixed.hashed.clear();
+    kept.classified.clear();
+    kept.hashed.clear();
     const Positions& x = *positions_[o];
     const Eigen::Vector3d lo = search_lo_[o], hi = search_hi_[o];
     auto classify = [&](int v) {
       const Eigen::Vector3d p = x.row(v).transpose();
       outcode[v] = Outcode(p, lo, hi);
-      fixed.classified.push_back(v);
+      kept.classified.push_back(v);
       if (outcode[v] == 0) {
         cell[v] = Cell(p);
-        fixed.hashed.push_back(v);
+        kept.hashed.push_back(v);
       }
     };
     // (a vertex shared by several chunks is classified again, alike)
-    const std::vector<int>& run_vertices = fixed.mesh->spatial_run_vertices();
-    const std::vector<int>& run_offsets = fixed.mesh->spatial_run_vertex_offsets();
-    for (int run : fixed.searched) {
+    const std::vector<int>& run_vertices = kept.mesh->spatial_run_vertices();
+    const std::vector<int>& run_offsets = kept.mesh->spatial_run_vertex_offsets();
+    for (int run : kept.searched) {
       for (int i = run_offsets[run]; i < run_offsets[run + 1]; ++i) classify(run_vertices[i]);
     }
-    for (int v : fixed.loose_vertices) classify(v);
+    for (int v : kept.loose_vertices) classify(v);
     // (in vertex order, as the other objects' vertices are hashed)
-    std::sort(fixed.hashed.begin(), fixed.hashed.end());
-    fixed.hashed.erase(std::unique(fixed.hashed.begin(), fixed.hashed.end()), fixed.hashed.end());
+    std::sort(kept.hashed.begin(), kept.hashed.end());
+    kept.hashed.erase(std::unique(kept.hashed.begin(), kept.hashed.end()), kept.hashed.end());
   }
 }
 
@@ -929,8 +931,8 @@ void PenetrationSolver::BuildVertexHash(int num_threads) {
   const int per_vertex = keyed + unkeyed;
   // the insertions, vertex by vertex (keyed, then unkeyed), in blocks of
   // up to kVertexBlock vertices, each with its first insertion: the
-  // vertices of the objects that are not fixed, taken eight outcodes at a
-  // time, and in place of each fixed object its list of vertices in the
+  // vertices of the objects that are not kept, taken eight outcodes at a
+  // time, and in place of each kept object its list of vertices in the
   // search box (its other outcodes are not read)
   vertex_blocks_.clear();
   auto add_blocks = [&](int begin, int end) {
@@ -938,11 +940,11 @@ void PenetrationSolver::BuildVertexHash(int num_threads) {
       vertex_blocks_.push_back({b, std::min(end, b + kVertexBlock), -1});
     }
   };
-  int span = 0;  // (start of the objects not fixed since the last fixed one)
-  for (int o = 0; o < num_objects && any_fixed_; ++o) {
-    if (!fixed_[o].active) continue;
+  int span = 0;  // (start of the objects not kept since the last kept one)
+  for (int o = 0; o < num_objects && any_kept_; ++o) {
+    if (!kept_[o].active) continue;
     add_blocks(span, vertex_offset_[o]);
-    vertex_blocks_.push_back({0, static_cast<int>(fixed_[o].hashed.size()), o});
+    vertex_blocks_.push_back({0, static_cast<int>(kept_[o].hashed.size()), o});
     span = vertex_offset_[o + 1];
   }
   add_blocks(span, num_vertices);
@@ -952,7 +954,7 @@ void PenetrationSolver::BuildVertexHash(int num_threads) {
   block_insertion_[0] = 0;
   ParallelFor(threads, 0, num_blocks, [&](int k) {
     const VertexBlock& block = vertex_blocks_[k];
-    const int hashed = block.fixed >= 0
+    const int hashed = block.kept >= 0
                            ? block.end
                            : CountZeroBytes(vertex_outcode_.data(), block.begin, block.end);
     block_insertion_[k + 1] = hashed * per_vertex;
@@ -968,9 +970,9 @@ void PenetrationSolver::BuildVertexHash(int num_threads) {
       if (keyed) hash_.SetInsertion(i++, vertex_cell_[g], g, vertex_object_[g] + 1);
       if (unkeyed) hash_.SetInsertion(i++, vertex_cell_[g], g);
     };
-    if (block.fixed >= 0) {
-      const int offset = vertex_offset_[block.fixed];
-      for (int v : fixed_[block.fixed].hashed) insert(offset + v);
+    if (block.kept >= 0) {
+      const int offset = vertex_offset_[block.kept];
+      for (int v : kept_[block.kept].hashed) insert(offset + v);
     } else {
       ForEachZeroByte(vertex_outcode_.data(), block.begin, block.end, insert);
     }
@@ -1004,7 +1006,7 @@ int PenetrationSolver::BeginSearch(std::span<const CollisionObject> objects, int
     scratch.large_tets.clear();
   }
   if (!any_deformable) return 0;
-  return any_fixed_ ? static_cast<int>(search_chunks_.size()) : chunk_offset_[num_objects];
+  return any_kept_ ? static_cast<int>(search_chunks_.size()) : chunk_offset_[num_objects];
 }
 
 // pass 2 of stage 1: the tetrahedra, in chunks of kChunkTets consecutive
@@ -1368,9 +1370,9 @@ int PenetrationSolver::PlaceSurfaces(std::span<const CollisionObject> objects, b
   for (int o : surface_list_) {
     const int num_faces = static_cast<int>(objects[o].mesh->surface().rows());
     object_small_[o] = num_faces <= kSmallSurface;
-    // (a fixed object's closest features come from the tree kept of it:
+    // (a kept object's closest features come from the tree kept of it:
     // its faces in play, as for stage 2, are enough)
-    object_fully_hashed_[o] = object_small_[o] || (full && !fixed_[o].active);
+    object_fully_hashed_[o] = object_small_[o] || (full && !kept_[o].active);
     object_entry_begin_[o] = num_entries;
     object_entry_end_[o] = num_entries;
     num_entries += num_faces;
@@ -1408,14 +1410,14 @@ void PenetrationSolver::HashSurface(std::span<const CollisionObject> objects, in
     faces.resize(num_faces);
     std::iota(faces.begin(), faces.end(), 0);
     num_in_play = num_faces;
-  } else if (fixed_[o].active) {
+  } else if (kept_[o].active) {
     // among the faces of the searched chunks (a face in play meets the
     // search box, and so does the box of its tet's chunk), in order
-    const FixedObject& fixed = fixed_[o];
+    const KeptObject& kept = kept_[o];
     faces.clear();
-    for (int run : fixed.searched) {
-      faces.insert(faces.end(), fixed.run_faces.begin() + fixed.run_face_offset[run],
-                   fixed.run_faces.begin() + fixed.run_face_offset[run + 1]);
+    for (int run : kept.searched) {
+      faces.insert(faces.end(), kept.run_faces.begin() + kept.run_face_offset[run],
+                   kept.run_faces.begin() + kept.run_face_offset[run + 1]);
     }
     std::sort(faces.begin(), faces.end());
     const std::uint8_t* outcode = vertex_outcode_.data() + vertex_offset_[o];
@@ -1488,7 +1490,7 @@ void PenetrationSolver::HashSurface(std::span<const CollisionObject> objects, in
 }
 
 void PenetrationSolver::AddRemainingTriangles(std::span<const CollisionObject> objects, int b) {
-  if (object_fully_hashed_[b] || fixed_[b].active) return;  // (fixed: its tree of all faces)
+  if (object_fully_hashed_[b] || kept_[b].active) return;  // (kept: its tree of all faces)
   object_fully_hashed_[b] = 1;
   const Triangles& surface = objects[b].mesh->surface();
   object_rest_begin_[b] = static_cast<int>(triangles_.size());
@@ -1996,14 +1998,14 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
   // the object's box tree over all its triangles: kept, if it is fixed or
   // framed, or built by ComputeClosest (nearer boxes first, those farther
   // than the best passed over); else every triangle
-  if (fixed_[b].active) {
-    const FixedObject& fixed = fixed_[b];
+  if (kept_[b].active) {
+    const KeptObject& kept = kept_[b];
     const Positions& x = *objects[b].positions;
     // (framed: distances are the same in the body frame, and the kept
     // boxes' growth covers the rounding of p taken there)
-    const Eigen::Vector3d q = fixed.ToBody(p);
-    fixed.faces.Nearest(q, best, [&](int f) {
-      test_face(f, fixed.face_lo[f], fixed.face_hi[f], q, [&] {
+    const Eigen::Vector3d q = kept.ToBody(p);
+    kept.faces.Nearest(q, best, [&](int f) {
+      test_face(f, kept.face_lo[f], kept.face_hi[f], q, [&] {
         return std::array<Eigen::Vector3d, 3>{x.row(surface(f, 0)).transpose(),
                                               x.row(surface(f, 1)).transpose(),
                                               x.row(surface(f, 2)).transpose()};
@@ -2040,7 +2042,7 @@ void PenetrationSolver::ComputeClosest(std::span<const CollisionObject> objects,
     AddRemainingTriangles(objects, b);
     // a box tree for the objects with enough queries to pay for it (a
     // coarse box's one corner in a fine ball is cheaper searched whole)
-    if (++closest_queries_[b] == kMinTreeQueries && !object_small_[b] && !fixed_[b].active) {
+    if (++closest_queries_[b] == kMinTreeQueries && !object_small_[b] && !kept_[b].active) {
       tree_objects_.push_back(b);
     }
   }

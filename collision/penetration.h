@@ -270,13 +270,13 @@ class PenetrationSolver {
   // chunk's box: that of its tets' corners), per chunk its surface faces
   // (the faces of its tets, ascending), and a tree over its faces. A framed
   // object's boxes are in its body frame, grown by `pad`.
-  struct FixedObject {
+  struct KeptObject {
     const TetMesh* mesh = nullptr;  // the object seen last (null: none)
     const Positions* positions = nullptr;
     bool framed = false;
     std::vector<int> sample_vertex;       // compared every solve
     std::vector<Eigen::Vector3d> sample;  // their positions (body frame if framed) when kept
-    bool kept = false;                    // what follows is of those positions
+    bool built = false;                   // what follows is of those positions
     Eigen::Vector3d lo, hi;               // box, before Inflate (not framed)
     bool finite = true;                   // every position is finite
     // framed: this solve's frame; the largest body-frame coordinate (in
@@ -298,7 +298,7 @@ class PenetrationSolver {
     BoxTree faces;
     std::vector<Eigen::Vector3d> face_lo, face_hi;
     std::vector<int> loose_vertices;  // in no tet (TetMeshOptions::drop_unreferenced off)
-    bool active = false;              // this solve: fixed, and kept
+    bool active = false;              // this solve: fixed or framed, and kept
     std::vector<int> searched;        // this solve: chunks whose box meets the search box
     // this solve: the vertices of those chunks (and loose ones) that got an
     // outcode, with repeats, and those in the search box, ascending; the
@@ -311,7 +311,7 @@ class PenetrationSolver {
   // it can unless some of its sampled vertices moved since they were kept
   // (then it is solved without, and kept again once it stays still, or
   // rigid) or its frame is not a rotation; keeps it if it is not kept yet.
-  static bool KeepFixed(const CollisionObject& object, FixedObject& fixed);
+  static bool KeepObject(const CollisionObject& object, KeptObject& kept);
   void Prepare(std::span<const CollisionObject> objects);
   void FindCollidingPoints(std::span<const CollisionObject> objects);
   void FindCollidingPointsAndHashSurfaces(std::span<const CollisionObject> objects, int threads);
@@ -320,10 +320,10 @@ class PenetrationSolver {
   // rigid; a chunk at a time) and
   // the merge of the threads' hits
   void BeginVertexHash();
-  void ClassifyVertices(int begin_vertex, int end_vertex);  // (global numbers; not fixed objects')
-  // fixed objects' vertices: only those of the searched chunks (and loose
+  void ClassifyVertices(int begin_vertex, int end_vertex);  // (global numbers; not kept objects')
+  // kept objects' vertices: only those of the searched chunks (and loose
   // ones) get their outcode and cell; the others are beyond every side
-  void ClassifyFixedVertices();
+  void ClassifyKeptVertices();
   void BuildVertexHash(int num_threads);
   int BeginSearch(std::span<const CollisionObject> objects, int num_threads);
   void SearchChunk(std::span<const CollisionObject> objects, int chunk);
@@ -378,7 +378,7 @@ class PenetrationSolver {
   void CollectResults(std::span<const CollisionObject> objects);
 
   // the chunk of stage 1's i-th search
-  int SearchedChunk(int i) const { return any_fixed_ ? search_chunks_[i] : i; }
+  int SearchedChunk(int i) const { return any_kept_ ? search_chunks_[i] : i; }
   int FindHit(int vertex, int penetrated) const;
   Eigen::Vector3d Position(int global_vertex) const;
   // nearest point of B's surface to p (excluding triangles at vertex
@@ -419,20 +419,20 @@ class PenetrationSolver {
   std::vector<Partner> partners_;    // per object, its partners
   std::vector<int> chunk_offset_;    // #objects + 1: global index of stage 1's tet chunks
   std::vector<int> partnered_;       // the objects with partners
-  std::vector<FixedObject> fixed_;   // #objects
-  bool any_fixed_ = false;           // an object is active in fixed_ this solve
-  // with any_fixed_: the chunks stage 1 searches (every chunk of an object
-  // that is not fixed, a fixed one's searched chunks), ascending
+  std::vector<KeptObject> kept_;     // #objects
+  bool any_kept_ = false;            // an object is active in kept_ this solve
+  // with any_kept_: the chunks stage 1 searches (every chunk of an object
+  // that is not kept, a kept one's searched chunks), ascending
   std::vector<int> search_chunks_;
 
   SpatialHash hash_;  // stage 1: vertices
   std::vector<Eigen::Vector3i> vertex_cell_;
   // BuildVertexHash: blocks of vertices to hash, each [begin, end) of the
-  // global vertices, or `fixed`'s list of vertices in its search box (its
+  // global vertices, or `kept`'s list of vertices in its search box (its
   // first `end`); and each block's first insertion
   struct VertexBlock {
     int begin, end;
-    int fixed;  // the fixed object, or -1
+    int kept;  // the kept object, or -1
   };
   std::vector<VertexBlock> vertex_blocks_;
   std::vector<int> block_insertion_;

@@ -52,12 +52,11 @@ TEST(Allocation, WarmSolvesAllocateNothing) {
   const Positions slab_start = *scene.positions[slab];
   RigidFrame frame;
   enum Slab { kPlain, kFixed, kFramed };
-  for (const auto& [method, cell_size, kept] :
-       {std::tuple{DepthMethod::kConsistent, 0.0, kPlain},
-        std::tuple{DepthMethod::kClosest, 0.0, kPlain},
-        std::tuple{DepthMethod::kConsistent, 0.002, kPlain},
-        std::tuple{DepthMethod::kConsistent, 0.0, kFixed},
-        std::tuple{DepthMethod::kClosest, 0.0, kFramed}}) {
+  for (const auto& [method, cell_size, kept] : {std::tuple{DepthMethod::kConsistent, 0.0, kPlain},
+                                                std::tuple{DepthMethod::kClosest, 0.0, kPlain},
+                                                std::tuple{DepthMethod::kConsistent, 0.002, kPlain},
+                                                std::tuple{DepthMethod::kConsistent, 0.0, kFixed},
+                                                std::tuple{DepthMethod::kClosest, 0.0, kFramed}}) {
     // (the slab: what is kept of it, kept once)
     scene.objects[slab].fixed = kept == kFixed;
     scene.objects[slab].frame = kept == kFramed ? &frame : nullptr;
@@ -76,8 +75,8 @@ TEST(Allocation, WarmSolvesAllocateNothing) {
     solve(1);
     const long before = allocations.load();
     for (int k = 2; k < 5; ++k) solve(k);
-    EXPECT_EQ(allocations.load() - before, 0) << DepthMethodName(method) << " " << cell_size
-                                              << " " << kept;
+    EXPECT_EQ(allocations.load() - before, 0)
+        << DepthMethodName(method) << " " << cell_size << " " << kept;
     EXPECT_EQ(solver.stats().fixed_objects, kept == kFixed ? 1 : 0);
     EXPECT_EQ(solver.stats().framed_objects, kept == kFramed ? 1 : 0);
     EXPECT_GT(solver.results().size(), 100u);
