@@ -726,11 +726,13 @@ bool PenetrationSolver::KeepObject(const CollisionObject& object, KeptObject& ke
     kept.run_lo[r] = lo - pad;
     kept.run_hi[r] = hi + pad;
   }
-  // (a non-finite object is left out of the solve: no chunk to search)
-  kept.runs.Build(kept.finite ? std::span<const Eigen::Vector3d>(kept.run_lo)
-                              : std::span<const Eigen::Vector3d>(),
-                  kept.finite ? std::span<const Eigen::Vector3d>(kept.run_hi)
-                              : std::span<const Eigen::Vector3d>());
+  // (a non-finite object is left out of the solve: its trees are empty,
+  // no chunk to search, no face to find)
+  auto if_finite = [&](const std::vector<Eigen::Vector3d>& boxes) {
+    return kept.finite ? std::span<const Eigen::Vector3d>(boxes)
+                       : std::span<const Eigen::Vector3d>();
+  };
+  kept.runs.Build(if_finite(kept.run_lo), if_finite(kept.run_hi));
   kept.loose_vertices.clear();
   for (int v = 0; v < num_vertices; ++v) {
     if (!in_run[v]) kept.loose_vertices.push_back(v);
@@ -757,10 +759,7 @@ bool PenetrationSolver::KeepObject(const CollisionObject& object, KeptObject& ke
     kept.face_lo[f] -= pad;
     kept.face_hi[f] += pad;
   }
-  kept.faces.Build(kept.finite ? std::span<const Eigen::Vector3d>(kept.face_lo)
-                               : std::span<const Eigen::Vector3d>(),
-                   kept.finite ? std::span<const Eigen::Vector3d>(kept.face_hi)
-                               : std::span<const Eigen::Vector3d>());
+  kept.faces.Build(if_finite(kept.face_lo), if_finite(kept.face_hi));
   return true;
 }
 
@@ -1973,6 +1972,14 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
       closest = c;
     }
   };
+  // face f's corners from the object's positions (a small or kept object's
+  // faces have no entry)
+  const Positions& x = *objects[b].positions;
+  auto face_corners = [&](int f) {
+    return std::array<Eigen::Vector3d, 3>{x.row(surface(f, 0)).transpose(),
+                                          x.row(surface(f, 1)).transpose(),
+                                          x.row(surface(f, 2)).transpose()};
+  };
   auto test = [&](int index) {  // a triangle entry
     const TriangleEntry& entry = triangles_[index];
     test_face(entry.face, entry.lo, entry.hi, p, [&] {
@@ -1982,16 +1989,11 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
     });
   };
   if (object_small_[b]) {  // (its boxes in small_, no entries)
-    const Positions& x = *objects[b].positions;
     const SmallTriangleGroup* groups = &small_[object_small_begin_[b]];
     for (int f = 0; f < object_entry_end_[b] - object_entry_begin_[b]; ++f) {
       const SmallTriangleGroup& group = groups[f / 4];
       const int lane = f % 4;
-      test_face(f, Lane(group.lo, lane), Lane(group.hi, lane), p, [&] {
-        return std::array<Eigen::Vector3d, 3>{x.row(surface(f, 0)).transpose(),
-                                              x.row(surface(f, 1)).transpose(),
-                                              x.row(surface(f, 2)).transpose()};
-      });
+      test_face(f, Lane(group.lo, lane), Lane(group.hi, lane), p, [&] { return face_corners(f); });
     }
     return std::isfinite(best);
   }
@@ -2000,16 +2002,11 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
   // than the best passed over); else every triangle
   if (kept_[b].active) {
     const KeptObject& kept = kept_[b];
-    const Positions& x = *objects[b].positions;
     // (framed: distances are the same in the body frame, and the kept
     // boxes' growth covers the rounding of p taken there)
     const Eigen::Vector3d q = kept.ToBody(p);
     kept.faces.Nearest(q, best, [&](int f) {
-      test_face(f, kept.face_lo[f], kept.face_hi[f], q, [&] {
-        return std::array<Eigen::Vector3d, 3>{x.row(surface(f, 0)).transpose(),
-                                              x.row(surface(f, 1)).transpose(),
-                                              x.row(surface(f, 2)).transpose()};
-      });
+      test_face(f, kept.face_lo[f], kept.face_hi[f], q, [&] { return face_corners(f); });
     });
   } else if (closest_queries_[b] >= kMinTreeQueries) {
     const ObjectTriangles& hashed = object_triangles_[b];
