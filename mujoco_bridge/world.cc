@@ -334,13 +334,12 @@ void CheckModelFinite(const mjModel* m, const std::string& scene_path) {
 struct World::Proxy {
   int body = -1;
   std::shared_ptr<const TetMesh> mesh;  // in the body frame
-  Positions positions;                  // world frame, at `pose`
-  // the body's xpos and xmat that `positions` were computed at, and how
+  Positions positions;                  // world frame, at `frame`
+  // the body's pose (xpos, xmat) that `positions` were computed at, and how
   // many times they were: 0, 1 (never moved since, as a static body) or 2
   // (more)
-  std::array<double, 12> pose{};
+  RigidFrame frame;
   int placements = 0;
-  RigidFrame frame;  // the body's pose, as `positions` were computed at
 
   Eigen::VectorXd areas;
   double friction = 0.5;
@@ -628,25 +627,25 @@ void World::AddRigidForce(int body, const Eigen::Vector3d& point, const Eigen::V
 
 void World::UpdateProxies() {
   for (auto& proxy : proxies_) {
-    std::array<double, 12> pose;
-    std::copy_n(data_->xpos + 3 * proxy->body, 3, pose.begin());
-    std::copy_n(data_->xmat + 9 * proxy->body, 9, pose.begin() + 3);
+    const Eigen::Isometry3d X_WB = BodyPose(data_, proxy->body);
+    const Eigen::Matrix3d R_WB = X_WB.linear();
+    const Eigen::Vector3d p_WB = X_WB.translation();
     // (a body that has not moved, bit for bit, such as a static one: its
     // positions are still right, and the penetration solver keeps what it
     // derived from them, see BuildCollisionObjects)
+    RigidFrame& frame = proxy->frame;
     if (proxy->placements > 0 &&
-        std::memcmp(pose.data(), proxy->pose.data(), sizeof(double) * pose.size()) == 0) {
+        std::memcmp(R_WB.data(), frame.rotation.data(), sizeof(double) * 9) == 0 &&
+        std::memcmp(p_WB.data(), frame.translation.data(), sizeof(double) * 3) == 0) {
       continue;
     }
-    Eigen::Isometry3d X_WB = BodyPose(data_, proxy->body);
     const Positions& rest = proxy->mesh->positions();
     for (Eigen::Index v = 0; v < rest.rows(); ++v) {
       proxy->positions.row(v) = (X_WB * rest.row(v).transpose()).transpose();
     }
-    proxy->pose = pose;
+    frame.rotation = R_WB;
+    frame.translation = p_WB;
     proxy->placements = std::min(proxy->placements + 1, 2);
-    proxy->frame.rotation = X_WB.linear();
-    proxy->frame.translation = X_WB.translation();
   }
 }
 
