@@ -84,8 +84,9 @@ int main(int argc, char** argv) {
     best = std::min(best, std::chrono::duration<double>(Clock::now() - start).count());
   }
   responder.join();
-  if (!pinned || !responder_pinned)
+  if (!pinned || !responder_pinned) {
     std::fprintf(stderr, "note: could not pin the threads to CPUs %d and %d\n", cpus[0], cpus[1]);
+  }
   std::printf("%.1f\n", best / kRoundTrips * 1e9);
   return 0;
 }
