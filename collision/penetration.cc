@@ -75,7 +75,7 @@ constexpr long kMaxChunkCells = 64;
 // thread. A point takes about 40 ns; on two threads the layers of the 70%
 // cubes (up to a few hundred points) took longer together than on one,
 // with 32 (15.1-15.7 against 12.3 us; 25.7 when the cores were far apart,
-// build/bench/core_round_trip 450-550 ns), and 12.7-12.9 us with 256.
+// build/bench/two_cores: 450-550 ns round trip), and 12.7-12.9 us with 256.
 constexpr int kMinLayerPointsPerThread = 256;
 // Objects with more partners than this look up all vertices near a
 // tetrahedron at once instead of partner by partner (stage 1).
