@@ -60,8 +60,14 @@ class TetMesh {
   // index out of range, repeated vertex in a tetrahedron, degenerate or (with
   // flip_inverted = false) inverted tetrahedra, duplicate tetrahedra, faces
   // shared by more than two tetrahedra, non-manifold boundary edges or
-  // vertices.
+  // vertices, more than kMaxTets tetrahedra or kMaxVertices vertices.
   static TetMesh Build(RawMesh raw, const TetMeshOptions& options = {});
+
+  // The most tetrahedra and vertices a mesh may have. Indices are int, and
+  // every count made from them then fits in one too: the largest, the
+  // entries of a deformable body's matrix, at most 9 (#V + 12 #T).
+  static constexpr int kMaxTets = 10'000'000;
+  static constexpr int kMaxVertices = 10'000'000;
 
   const std::string& source() const { return source_; }
   int num_vertices() const { return static_cast<int>(positions_.rows()); }

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <random>
 #include <set>
+#include <utility>
 
 #include "mesh/error.h"
 #include "mesh/generators.h"
@@ -62,6 +63,23 @@ TEST(TetMesh, InvertedTetrahedraAreFlippedOrRejected) {
   TetMeshOptions strict;
   strict.flip_inverted = false;
   EXPECT_THROW(TetMesh::Build(raw, strict), Error);
+}
+
+// A mesh past the size limit is refused with a message, before any count
+// made from its size could overflow an int; one at the limit is not
+// refused for its size (its tetrahedra, all alike, fail a later check).
+TEST(TetMesh, MeshesPastTheSizeLimitAreRefused) {
+  for (const int extra : {1, 0}) {
+    RawMesh raw = UnitTet();
+    raw.tets = Tets::Zero(TetMesh::kMaxTets + extra, 4);
+    try {
+      TetMesh::Build(std::move(raw));
+      ADD_FAILURE() << "a mesh of " << TetMesh::kMaxTets + extra << " tetrahedra was built";
+    } catch (const Error& e) {
+      const std::string message = e.what();
+      EXPECT_EQ(message.find("at most") != std::string::npos, extra == 1) << message;
+    }
+  }
 }
 
 TEST(TetMesh, UnreferencedVerticesAreDroppedWithAWarning) {
