@@ -70,9 +70,10 @@ double ParseMilliseconds(const std::string& text) {
   } catch (const std::exception&) {
     used = 0;
   }
-  if (used != number.size() || !(value > 0.0) || !std::isfinite(value))
+  if (used != number.size() || !(value > 0.0) || !std::isfinite(value)) {
     throw Error("--dt: '" + text +
                 "' is not a positive time step (milliseconds, e.g. 0.5,1,2 or 2ms or 0.002s)");
+  }
   return value * scale;
 }
 
@@ -173,14 +174,17 @@ RunRow RunOne(const CompareOptions& options, const std::string& method, double d
 // gaps are listed
 std::string PlausibleRange(const std::vector<RunRow>& rows, const std::string& method) {
   std::vector<double> ok;
-  for (const RunRow& row : rows)
+  for (const RunRow& row : rows) {
     if (row.method == method && row.plausible) ok.push_back(row.dt_ms);
+  }
   if (ok.empty()) return "none";
   std::vector<double> all;
-  for (const RunRow& row : rows)
+  for (const RunRow& row : rows) {
     if (row.method == method) all.push_back(row.dt_ms);
-  if (ok.size() == all.size())
+  }
+  if (ok.size() == all.size()) {
     return Format("%g", ok.front()) + "-" + Format("%g", ok.back()) + " ms (all)";
+  }
   std::string text;
   for (double dt : ok) text += (text.empty() ? "" : ", ") + Format("%g", dt);
   return text + " ms";
@@ -226,8 +230,9 @@ void WriteTables(const CompareOptions& options, const std::vector<RunRow>& rows,
     md << line;
   }
   md << "\nPlausible time steps:";
-  for (const std::string& method : options.methods)
+  for (const std::string& method : options.methods) {
     md << " " << method << " " << PlausibleRange(rows, method) << ";";
+  }
   md.seekp(-1, std::ios_base::cur);
   md << ".\n";
   WriteFileAtomically((out / "table.csv").string(), csv.str());
@@ -242,8 +247,9 @@ void WritePlots(const std::vector<RunRow>& rows, const std::filesystem::path& ou
         "set key outside right\nset xlabel 'time (s)'\nset grid\nset format y '%g'\n";
   // one colour per time step; consistent solid, closest dashed
   std::vector<double> dts;
-  for (const RunRow& row : rows)
+  for (const RunRow& row : rows) {
     if (std::find(dts.begin(), dts.end(), row.dt_ms) == dts.end()) dts.push_back(row.dt_ms);
+  }
   auto curves = [&](const char* column) {
     std::string text;
     for (size_t k = 0; k < rows.size(); ++k) {
@@ -267,8 +273,9 @@ void WritePlots(const std::vector<RunRow>& rows, const std::filesystem::path& ou
     return;
   }
   std::string command = "cd '" + out.string() + "' && gnuplot plots.gp";
-  if (std::system(command.c_str()) != 0)
+  if (std::system(command.c_str()) != 0) {
     std::fprintf(stderr, "tetcosim: gnuplot failed on %s/plots.gp\n", out.string().c_str());
+  }
 }
 
 void RunCompare(CompareOptions options) {
@@ -276,17 +283,21 @@ void RunCompare(CompareOptions options) {
   for (const std::string& text : options.dt) {
     dts.push_back(ParseMilliseconds(text));
     // (a repeated step would run twice into the same folder and table row)
-    if (std::count(dts.begin(), dts.end(), dts.back()) > 1)
+    if (std::count(dts.begin(), dts.end(), dts.back()) > 1) {
       throw Error("--dt: '" + text + "' repeats a time step given before it");
+    }
   }
   for (const std::string& method : options.methods) {
-    if (method != "consistent" && method != "closest")
+    if (method != "consistent" && method != "closest") {
       throw Error("--methods: '" + method + "' is not consistent or closest");
-    if (std::count(options.methods.begin(), options.methods.end(), method) > 1)
+    }
+    if (std::count(options.methods.begin(), options.methods.end(), method) > 1) {
       throw Error("--methods: '" + method + "' is given twice");
+    }
   }
-  if (options.out.empty())
+  if (options.out.empty()) {
     options.out = "compare-" + std::filesystem::path(options.scene).stem().string();
+  }
   const std::filesystem::path out(options.out);
   std::error_code error;
   std::filesystem::create_directories(out, error);
@@ -305,8 +316,9 @@ void RunCompare(CompareOptions options) {
     if (interrupted) break;
   }
   WritePlots(rows, out);
-  for (const std::string& method : options.methods)
+  for (const std::string& method : options.methods) {
     std::printf("  %s plausible at: %s\n", method.c_str(), PlausibleRange(rows, method).c_str());
+  }
   std::printf("  wrote %s/table.md, table.csv, plots and runs/\n", options.out.c_str());
   if (interrupted) throw Error("interrupted; the runs finished so far are in the tables");
 }

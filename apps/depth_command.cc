@@ -49,8 +49,9 @@ void RunDepth(const DepthOptions& options) {
   X_WB.translation() = Eigen::Vector3d(options.move_b[0], options.move_b[1], options.move_b[2]);
   Positions x_a = mesh_a.positions();
   Positions x_b = mesh_b.positions();
-  for (Eigen::Index v = 0; v < x_b.rows(); ++v)
+  for (Eigen::Index v = 0; v < x_b.rows(); ++v) {
     x_b.row(v) = (X_WB * x_b.row(v).transpose()).transpose();
+  }
 
   PenetrationOptions solver_options;
   solver_options.method =

@@ -7,10 +7,9 @@
 #include "mesh/error.h"
 #include "mujoco_bridge/mujoco_version.h"
 
-int main(int argc, char** argv) {
-  CLI::App app{
-      "tetcosim: soft tetrahedral bodies (co-rotational FEM, consistent penetration "
-      "depth) with MuJoCo rigid bodies and robots"};
+namespace {
+
+int Main(CLI::App& app, int argc, char** argv) {
   app.set_version_flag("--version", [] {
     return std::string("tetcosim 0.1.0 (MuJoCo ") + tetcosim::MujocoVersion() + ")";
   });
@@ -24,6 +23,19 @@ int main(int argc, char** argv) {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
+  }
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  // (everything in the try: setting the commands up may throw too)
+  try {
+    CLI::App app{
+        "tetcosim: soft tetrahedral bodies (co-rotational FEM, consistent penetration "
+        "depth) with MuJoCo rigid bodies and robots"};
+    return Main(app, argc, argv);
   } catch (const tetcosim::Error& e) {
     std::fprintf(stderr, "tetcosim: error: %s\n", e.what());
     return 1;
@@ -31,5 +43,4 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "tetcosim: internal error: %s\n", e.what());
     return 3;
   }
-  return 0;
 }

@@ -338,7 +338,8 @@ void SlabUnderCubes(benchmark::State& state, const std::string& slab) {
   const TetMesh& cube = scene.Mesh("box:size=0.03:res=12");
   const int count = static_cast<int>(state.range(0));
   for (int k = 0; k < count; ++k) {
-    scene.Add(cube, Eigen::Vector3d(-0.45 + 0.1 * (k % 10), -0.45 + 0.1 * (k / 10), 0.075));
+    const int row = k / 10, column = k % 10;  // (ten to a row)
+    scene.Add(cube, Eigen::Vector3d(-0.45 + 0.1 * column, -0.45 + 0.1 * row, 0.075));
   }
   Run(state, scene);
 }

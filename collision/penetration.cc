@@ -23,6 +23,7 @@
 #include "mesh/error.h"
 #include "mesh/group_by_key.h"
 #include "mesh/parallel_for.h"
+#include "mesh/same_bits.h"
 
 namespace tetcosim {
 namespace {
@@ -675,7 +676,7 @@ bool PenetrationSolver::KeepObject(const CollisionObject& object, KeptObject& ke
     for (size_t i = 0; i < kept.sample_vertex.size(); ++i) {
       const Eigen::Vector3d p = position(kept.sample_vertex[i]);
       still &= framed ? (p - kept.sample[i]).cwiseAbs().maxCoeff() <= tolerance
-                      : std::memcmp(p.data(), kept.sample[i].data(), sizeof(double) * 3) == 0;
+                      : SameBits({p.data(), 3}, {kept.sample[i].data(), 3});
     }
     if (still && kept.built && 8.0 * tolerance <= kept.pad) return true;
     for (size_t i = 0; i < kept.sample_vertex.size(); ++i) {
@@ -1842,8 +1843,9 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
     GroupByKey(
         threads,
         [&](auto emit) {
-          for (int h = 0; h < num_hits; ++h)
+          for (int h = 0; h < num_hits; ++h) {
             emit(object_builder_[hits_[h].penetrated] % threads, h);
+          }
         },
         hit_group_offset_, hit_order_);
     // about sixteen grabs per thread, of 2 to 16 points: one thread's last
@@ -2075,8 +2077,9 @@ void PenetrationSolver::ComputeClosest(std::span<const CollisionObject> objects,
           // containing tet's centroid as the inside
           const auto tet = objects[b].mesh->tets().row(hits_[h].tet);
           Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
-          for (int c = 0; c < 4; ++c)
+          for (int c = 0; c < 4; ++c) {
             centroid += objects[b].positions->row(tet[c]).transpose() / 4.0;
+          }
           Eigen::Vector3d out = p - centroid;
           direction_[h] =
               out.norm() > 0.0 ? Eigen::Vector3d(out.normalized()) : Eigen::Vector3d::UnitZ();

@@ -96,8 +96,9 @@ Lanes3x3 ExtractRotations(const Lanes3x3& A, LaneQuaternion& q, int max_iteratio
     // the steps of ExtractRotation, lane by lane
     Lanes B[3][3];  // R^T A
     for (int i = 0; i < 3; ++i) {
-      for (int j = 0; j < 3; ++j)
+      for (int j = 0; j < 3; ++j) {
         B[i][j] = R[0][i] * A[0][j] + R[1][i] * A[1][j] + R[2][i] * A[2][j];
+      }
     }
     const Lanes gx = B[2][1] - B[1][2], gy = B[0][2] - B[2][0], gz = B[1][0] - B[0][1];
     const Lanes trace = B[0][0] + B[1][1] + B[2][2];

@@ -53,8 +53,10 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     const int size = 3 * body.num_vertices();
     v.segment(offset[k], size) = Eigen::Map<const Eigen::VectorXd>(body.velocities().data(), size);
     b.segment(offset[k], size) = body.system_rhs();
-    for (int vertex = 0; vertex < body.num_vertices(); ++vertex)
-      blocks[static_cast<size_t>(offset[k] / 3 + vertex)] = body.system_diagonal_block(vertex);
+    for (int vertex = 0; vertex < body.num_vertices(); ++vertex) {
+      const int block = offset[k] / 3 + vertex;
+      blocks[block] = body.system_diagonal_block(vertex);
+    }
     const Eigen::VectorXd& last = body.last_velocity_change();
     delta.segment(offset[k], size) = last.size() == size ? last : Eigen::VectorXd::Zero(size);
     for (size_t i = 0; i < body.pinned_vertices().size(); ++i) {
@@ -99,8 +101,9 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
 
   // y = A x
   auto multiply = [&](const Eigen::VectorXd& x, Eigen::VectorXd& y) {
-    for (int k = 0; k < num_bodies; ++k)
+    for (int k = 0; k < num_bodies; ++k) {
       bodies[k]->MultiplySystem(x.data() + offset[k], y.data() + offset[k]);
+    }
     for (const Coupling& coupling : couplings) coupling.AddJt(coupling.gain * coupling.Jv(x), y);
   };
   auto filter = [&](Eigen::VectorXd& x) {
@@ -116,16 +119,18 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     block = block.inverse().eval();
   }
   auto precondition = [&](const Eigen::VectorXd& r, Eigen::VectorXd& z) {
-    for (size_t i = 0; i < blocks.size(); ++i)
+    for (size_t i = 0; i < blocks.size(); ++i) {
       z.segment<3>(3 * static_cast<Eigen::Index>(i)) =
           blocks[i] * r.segment<3>(3 * static_cast<Eigen::Index>(i));
+    }
   };
   // the tolerance is relative to this step's impulse, b - (1 + dt alpha) M v
   // (what the forces add to the momentum), which needs no product with A;
   // floored at a millionth of the momentum for a body on which nothing acts
   Eigen::VectorXd impulse(n), momentum(n);
-  for (int k = 0; k < num_bodies; ++k)
+  for (int k = 0; k < num_bodies; ++k) {
     bodies[k]->MultiplyMass(v.data() + offset[k], momentum.data() + offset[k]);
+  }
   impulse = b - momentum;
   filter(impulse);
   filter(momentum);

@@ -92,8 +92,9 @@ DeformableBody::DeformableBody(std::shared_ptr<const FemModel> model, std::strin
   std::vector<Eigen::Triplet<double>> triplets;
   triplets.reserve(columns.size());
   for (int row = 0; row < 3 * n; ++row) {
-    for (int k = row_start[row]; k < row_start[row + 1]; ++k)
+    for (int k = row_start[row]; k < row_start[row + 1]; ++k) {
       triplets.emplace_back(row, columns[k], 1.0);
+    }
   }
   A_.setFromTriplets(triplets.begin(), triplets.end());
   A_.makeCompressed();
@@ -189,8 +190,9 @@ void DeformableBody::Assemble(const StepSettings& settings, bool matrix) {
     // F = sum_j (x_j - x_0) b_j^T, and its rotation
     Lanes3x3 F;
     for (int r = 0; r < 3; ++r) {
-      for (int c = 0; c < 3; ++c)
+      for (int c = 0; c < 3; ++c) {
         F[r][c] = D[r][0] * grad[0][c] + D[r][1] * grad[1][c] + D[r][2] * grad[2][c];
+      }
     }
     const Lanes3x3 R =
         ExtractRotations(F, q, settings.rotation_iterations, settings.rotation_tolerance);
@@ -202,8 +204,9 @@ void DeformableBody::Assemble(const StepSettings& settings, bool matrix) {
     }
     Lanes3x3 P;  // -dt V P
     for (int r = 0; r < 3; ++r) {
-      for (int c = 0; c < 3; ++c)
+      for (int c = 0; c < 3; ++c) {
         P[r][c] = (-dt * volume) * (2.0 * mu * (F[r][c] - R[r][c]) + lambda * trace * R[r][c]);
+      }
     }
     // c_j = R b_j (C[r][j]) and the impulses f_j (f[j][r]), j = 1..3
     Lanes3x3 C, f;
@@ -223,8 +226,9 @@ void DeformableBody::Assemble(const StepSettings& settings, bool matrix) {
     std::array<std::array<Lanes, 6>, 4> diagonal;
     for (int i = 0; i < 4; ++i) {
       std::array<Lanes, 3> ci;
-      for (int r = 0; r < 3; ++r)
+      for (int r = 0; r < 3; ++r) {
         ci[r] = i == 0 ? Lanes(-(C[r][0] + C[r][1] + C[r][2])) : C[r][i - 1];
+      }
       const Lanes a = s * (lambda + mu);
       const Lanes d = s * mu * (ci[0] * ci[0] + ci[1] * ci[1] + ci[2] * ci[2]);
       diagonal[i] = {a * ci[0] * ci[0] + d, a * ci[0] * ci[1], a * ci[0] * ci[2],
@@ -265,8 +269,9 @@ void DeformableBody::Assemble(const StepSettings& settings, bool matrix) {
     const double m = masses[v];
     diagonal_blocks_[v].diagonal().array() += mass_scale * m;
     if (matrix) {
-      for (int r = 0; r < 3; ++r)
+      for (int r = 0; r < 3; ++r) {
         values[row_start[3 * v + r] + model.diagonal_slot()[v] + r] += mass_scale * m;
+      }
     }
     b_.segment<3>(3 * v) +=
         m * v_.row(v).transpose() + dt * (m * settings.gravity + applied_.row(v).transpose());
@@ -326,8 +331,9 @@ void DeformableBody::MultiplyElementWise(const double* x, double* y) const {
     const Lanes3x3 D = GatherEdges(x, mesh.tets(), batch);
     Lanes3x3 G;  // sum_j D_j c_j^T
     for (int r = 0; r < 3; ++r) {
-      for (int c = 0; c < 3; ++c)
+      for (int c = 0; c < 3; ++c) {
         G[r][c] = D[r][0] * C[c][0] + D[r][1] * C[c][1] + D[r][2] * C[c][2];
+      }
     }
     const Lanes lambda_trace = system.lambda_scale * (G[0][0] + G[1][1] + G[2][2]);
     Lanes3x3 S;  // mu s V (G + G^T) + lambda s V tr(G) I
@@ -340,8 +346,9 @@ void DeformableBody::MultiplyElementWise(const double* x, double* y) const {
     }
     Lanes3x3 f;  // f[j][r] = (S c_j)_r, vertex j + 1
     for (int j = 0; j < 3; ++j) {
-      for (int r = 0; r < 3; ++r)
+      for (int r = 0; r < 3; ++r) {
         f[j][r] = S[r][0] * C[0][j] + S[r][1] * C[1][j] + S[r][2] * C[2][j];
+      }
     }
     ScatterEdges(f, mesh.tets(), batch, y);
   });
@@ -458,8 +465,9 @@ void DeformableBody::Solve(StepReport& report) {
 
 void StepSettings::Validate() const {
   auto fail = [](const std::string& message) { throw Error("step settings: " + message); };
-  if (!(dt > 0.0) || !std::isfinite(dt))
+  if (!(dt > 0.0) || !std::isfinite(dt)) {
     fail("dt is " + std::to_string(dt) + " s; give a finite time step > 0");
+  }
   if (!gravity.allFinite()) fail("gravity is not finite");
   if (!(cg_tolerance >= 0.0) || !std::isfinite(cg_tolerance) || !(rotation_tolerance >= 0.0) ||
       !std::isfinite(rotation_tolerance)) {
@@ -576,8 +584,9 @@ Positions DeformableBody::ElasticForces() {
     const Eigen::Matrix3d R = ExtractRotation(F, rotations_[t], 100, 1e-15);
     const Eigen::Matrix3d VP =
         model.mesh().rest_volumes()[t] * CorotatedStress(F, R, model.mu(), model.lambda());
-    for (int i = 0; i < 4; ++i)
+    for (int i = 0; i < 4; ++i) {
       forces.row(tet[i]) -= (VP * model.gradients()[t].row(i).transpose()).transpose();
+    }
   }
   return forces;
 }

@@ -369,6 +369,7 @@ std::vector<T> ParseList(const std::string& text, const std::string& what,
     T value{};
     auto [ptr, ec] = std::from_chars(item.data(), item.data() + item.size(), value);
     if (item.empty() || ec != std::errc() || ptr != item.data() + item.size()) {
+      // NOLINTNEXTLINE(performance-inefficient-string-concatenation): once, on failure
       throw Error(where + ": " + what + " '" + text + "' is not a list of numbers");
     }
     values.push_back(value);
@@ -414,8 +415,9 @@ RawMesh MakeShape(const std::string& shape, const std::vector<double>& size,
                                             : Eigen::Vector3d(size[0], size[1], size[2]);
     Eigen::Vector3i cells = Eigen::Vector3i::Constant(4);
     if (resolution.size() == 1) cells.setConstant(resolution[0]);
-    if (resolution.size() == 3)
+    if (resolution.size() == 3) {
       cells = Eigen::Vector3i(resolution[0], resolution[1], resolution[2]);
+    }
     if (resolution.size() == 2 || resolution.size() > 3) fail("box takes 1 or 3 resolution values");
     if (cells.minCoeff() < 1) fail("box needs at least 1 cell per axis");
     if (split != 5 && split != 6) fail("split must be 5 or 6");
@@ -470,6 +472,7 @@ RawMesh MakeShape(const std::string& spec) {
       if (s.size() != 1) throw Error(where + ": split takes one value, 5 or 6");
       split = s[0];
     } else {
+      // NOLINTNEXTLINE(performance-inefficient-string-concatenation): once, on failure
       throw Error(where + ": unknown key '" + key + "'; use size=, res= and (box) split=");
     }
   }

@@ -97,8 +97,9 @@ void RolloutMetrics::Observe(const World& world) {
     // overflow below 2^64 = (objects^2 x vertices of the largest mesh)
     num_collision_objects_ = objects.size();
     max_vertices_ = 1;
-    for (const CollisionObject& object : objects)
+    for (const CollisionObject& object : objects) {
       max_vertices_ = std::max<unsigned long long>(max_vertices_, object.mesh->num_vertices());
+    }
   }
   auto DirectionKey = [&](int object, int penetrated, int vertex) {
     return (static_cast<unsigned long long>(object) * num_collision_objects_ +
@@ -169,15 +170,17 @@ void RolloutMetrics::Observe(const World& world) {
       ++it;
       continue;
     }
-    if (Flipped(world, it->first.first, it->first.second, it->second))
+    if (Flipped(world, it->first.first, it->first.second, it->second)) {
       AddEvent(world, "pass-through", it->first.first, it->first.second, 0.0, 0.0, events_);
+    }
     it = open_.erase(it);
   }
 
   // spatial consistency (edges of colliding vertices) and temporal continuity
   directions_.clear();
-  for (const PenetrationResult& r : results)
+  for (const PenetrationResult& r : results) {
     directions_[DirectionKey(r.object, r.penetrated, r.vertex)] = r.direction;
+  }
   double step_angle_sum = 0.0;
   long step_angle_count = 0;
   step_max_change_ = 0.0;
@@ -222,8 +225,9 @@ RolloutSummary RolloutMetrics::Summarize(World& world) const {
   s.time = world.time();
   s.events = events_;
   for (const auto& [pair, episode] : open_) {
-    if (Flipped(world, pair.first, pair.second, episode))
+    if (Flipped(world, pair.first, pair.second, episode)) {
       AddEvent(world, "pass-through", pair.first, pair.second, 0.0, 0.0, s.events);
+    }
   }
 
   // exact interpenetration of the current state, deepest per pair; a static
@@ -252,7 +256,10 @@ RolloutSummary RolloutMetrics::Summarize(World& world) const {
   for (const PairEvent& event : s.events) passed.insert({event.a, event.b});
   std::vector<PairEvent> ranked;
   for (const auto& [pair, depth] : deepest) {
-    auto world_centre = [&](int object) { return Center(world, object, anchor.at(pair)); };
+    // (pair copied in: clang before 16 cannot capture a structured binding)
+    auto world_centre = [&, key = pair](int object) {
+      return Center(world, object, anchor.at(key));
+    };
     const double thickness = std::min(thickness_[pair.first], thickness_[pair.second]);
     if (depth > options_.pass_through_fraction * thickness && !passed.count(pair)) {
       AddEvent(world, "pass-through", pair.first, pair.second, depth,

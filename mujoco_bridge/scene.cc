@@ -202,12 +202,13 @@ class SceneParser {
           CheckAttributes(child, {"method", "stiffness", "damping", "friction"});
           if (const char* method = child->Attribute("method")) {
             std::string m(method);
-            if (m == "consistent")
+            if (m == "consistent") {
               scene.method = DepthMethod::kConsistent;
-            else if (m == "closest")
+            } else if (m == "closest") {
               scene.method = DepthMethod::kClosest;
-            else
+            } else {
               Fail(child, "method must be consistent or closest");
+            }
           }
           ContactAttributes(child, scene.contact);
         } else if (kind == "solver") {
@@ -215,12 +216,13 @@ class SceneParser {
           scene.solver.substeps = static_cast<int>(Number(child, "substeps", 1, 1000).value_or(1));
           if (const char* linear = child->Attribute("linear")) {
             std::string l(linear);
-            if (l == "cg")
+            if (l == "cg") {
               scene.solver.linear_solver = LinearSolver::kConjugateGradient;
-            else if (l == "ldlt")
+            } else if (l == "ldlt") {
               scene.solver.linear_solver = LinearSolver::kCholesky;
-            else
+            } else {
               Fail(child, "linear must be cg or ldlt");
+            }
           }
           scene.solver.tolerance = Number(child, "tolerance", 1e-14, 1e-1).value_or(1e-6);
           scene.solver.max_iterations =
@@ -274,13 +276,15 @@ class SceneParser {
     spec.name = name;
     spec.file = File(e, "file");
     if (const char* shape = e->Attribute("shape")) spec.shape = shape;
-    if (spec.file.empty() == spec.shape.empty())
+    if (spec.file.empty() == spec.shape.empty()) {
       Fail(e, "give either file or shape (box, sphere, cylinder, capsule, torus)");
+    }
     for (double s : Numbers(e, "size", 0, 3)) spec.size.push_back(s);
     for (double r : Numbers(e, "resolution", 0, 3)) spec.resolution.push_back(static_cast<int>(r));
     spec.split = static_cast<int>(Number(e, "split", 5, 6).value_or(6));
-    if (!spec.shape.empty() && spec.size.empty())
+    if (!spec.shape.empty() && spec.size.empty()) {
       Fail(e, "shape needs size (half-extents or radii, metres)");
+    }
     spec.pose = Pose(e);
     spec.scale = Number(e, "scale", 1e-9, 1e9).value_or(1.0);
     spec.material.density = Number(e, "density", 1e-9, 1e9).value_or(1000.0);
@@ -354,8 +358,9 @@ class SceneParser {
       if (sphere.size() != 4) Fail(e, "sphere takes x y z radius");
       spec.sphere = std::make_pair(Eigen::Vector3d(sphere[0], sphere[1], sphere[2]), sphere[3]);
     }
-    if (spec.vertices.empty() && !spec.box && !spec.sphere)
+    if (spec.vertices.empty() && !spec.box && !spec.sphere) {
       Fail(e, "choose vertices, box or sphere");
+    }
     return spec;
   }
 

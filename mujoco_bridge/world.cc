@@ -18,6 +18,7 @@
 #include "mesh/error.h"
 #include "mesh/generators.h"
 #include "mesh/mesh_io.h"
+#include "mesh/same_bits.h"
 
 namespace tetcosim {
 namespace {
@@ -205,8 +206,9 @@ std::string SkinXml(const DeformableBody& body, const Eigen::Vector4d& rgba,
   const TetMesh& mesh = body.mesh();
   const std::vector<int>& surface_vertices = mesh.surface_vertices();
   std::vector<int> index(mesh.num_vertices(), -1);
-  for (size_t i = 0; i < surface_vertices.size(); ++i)
+  for (size_t i = 0; i < surface_vertices.size(); ++i) {
     index[surface_vertices[i]] = static_cast<int>(i);
+  }
   std::ostringstream xml;
   xml.precision(9);
   xml << "<skin name=\"" << name << "\" rgba=\"" << rgba.transpose() << "\" vertex=\"";
@@ -433,8 +435,9 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
     std::string message = error;
     // MuJoCo names our in-memory file; the user knows the scene's
     size_t at = message.find(vfs_name);
-    if (at != std::string::npos)
+    if (at != std::string::npos) {
       message.replace(at, vfs_name.size(), std::filesystem::path(scene_path).filename().string());
+    }
     ThrowAt(scene_path, 0, "MuJoCo rejected the scene: " + OneLine(message));
   }
   mjModel* m = world->model_;
@@ -458,8 +461,9 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
   world->geom_has_proxy_.assign(m->ngeom, 0);
   for (const RigidTetSpec& spec : scene.rigidtets) {
     int body = mj_name2id(m, mjOBJ_BODY, spec.body.c_str());
-    if (body < 0)
+    if (body < 0) {
       ThrowAt(scene_path, spec.line, "<rigidtet>: no MuJoCo body named '" + spec.body + "'");
+    }
     auto proxy = std::make_unique<Proxy>();
     proxy->body = body;
     RawMesh raw;
@@ -502,8 +506,9 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
   for (const AttachSpec& spec : scene.attachments) {
     int index = world->DeformableIndex(spec.tetbody);
     int body = mj_name2id(m, mjOBJ_BODY, spec.body.c_str());
-    if (body < 0)
+    if (body < 0) {
       ThrowAt(scene_path, spec.line, "<attach>: no MuJoCo body named '" + spec.body + "'");
+    }
     if (world->attach_body_[index] >= 0 && world->attach_body_[index] != body) {
       ThrowAt(scene_path, spec.line,
               "<attach>: tetbody '" + spec.tetbody +
@@ -525,12 +530,14 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
           (p.array() <= spec.box->second.array()).all()) {
         vertices.push_back(v);
       }
-      if (spec.sphere && (p - spec.sphere->first).norm() <= spec.sphere->second)
+      if (spec.sphere && (p - spec.sphere->first).norm() <= spec.sphere->second) {
         vertices.push_back(v);
+      }
     }
-    if (vertices.empty())
+    if (vertices.empty()) {
       ThrowAt(scene_path, spec.line,
               "<attach>: the region holds no vertex of '" + spec.tetbody + "'");
+    }
     deformable.PinToFrame(vertices, BodyPose(d, body));
     world->attach_body_[index] = body;
   }
@@ -634,9 +641,8 @@ void World::UpdateProxies() {
     // positions are still right, and the penetration solver keeps what it
     // derived from them, see BuildCollisionObjects)
     RigidFrame& frame = proxy->frame;
-    if (proxy->placements > 0 &&
-        std::memcmp(R_WB.data(), frame.rotation.data(), sizeof(double) * 9) == 0 &&
-        std::memcmp(p_WB.data(), frame.translation.data(), sizeof(double) * 3) == 0) {
+    if (proxy->placements > 0 && SameBits({R_WB.data(), 9}, {frame.rotation.data(), 9}) &&
+        SameBits({p_WB.data(), 3}, {frame.translation.data(), 3})) {
       continue;
     }
     const Positions& rest = proxy->mesh->positions();
@@ -654,8 +660,9 @@ void World::ForEachGeomPenetration(
   const mjModel* m = model_;
   for (int g = 0; g < m->ngeom; ++g) {
     if (geom_has_proxy_[g]) continue;
-    if (!(m->geom_contype[g] & 1) && !(m->geom_conaffinity[g] & 1))
+    if (!(m->geom_contype[g] & 1) && !(m->geom_conaffinity[g] & 1)) {
       continue;  // deformables: contype = conaffinity = 1
+    }
     const int type = m->geom_type[g];
     if (type != mjGEOM_PLANE && type != mjGEOM_SPHERE && type != mjGEOM_CAPSULE &&
         type != mjGEOM_BOX && type != mjGEOM_CYLINDER) {
@@ -843,8 +850,9 @@ void World::Step() {
         Eigen::Isometry3d X = BodyPose(d, body);
         Eigen::Vector3d omega(velocity[0], velocity[1], velocity[2]);
         double t = settings.dt * (substep + 1);
-        if (omega.norm() > 0.0)
+        if (omega.norm() > 0.0) {
           X.linear() = Eigen::AngleAxisd(omega.norm() * t, omega.normalized()) * X.linear();
+        }
         X.translation() += t * Eigen::Vector3d(velocity[3], velocity[4], velocity[5]);
         bodies_[i]->SetPinFrame(X);
       }
@@ -877,9 +885,10 @@ void World::Step() {
       if (contact.body_a < 0) {
         // a proxy vertex inside a deformable: the proxy body gets the force on A
         const auto tet = bodies_[contact.body_b]->mesh().tets().row(contact.tet_b);
-        for (int k = 0; k < 4; ++k)
+        for (int k = 0; k < 4; ++k) {
           point += contact.barycentric_b[k] *
                    bodies_[contact.body_b]->positions().row(tet[k]).transpose();
+        }
         AddRigidForce(body, point, contact.force / substeps);
       } else {
         AddRigidForce(body, point, -contact.force / substeps);
@@ -920,7 +929,7 @@ void World::Step() {
   metrics_.mujoco_ms += MillisecondsSince(phase);
   for (int k = 0; k < 3; ++k) {
     if (d->warning[kBadState[k]].number == bad_before[k]) continue;
-    static const char* const kWhat[3] = {"position", "velocity", "acceleration"};
+    constexpr const char* kWhat[3] = {"position", "velocity", "acceleration"};
     metrics_.status = StepStatus::kDiverged;
     std::ostringstream message;
     message << "MuJoCo found a non-finite or huge " << kWhat[k] << " at DOF "

@@ -66,7 +66,8 @@ TEST(Allocation, WarmSolvesAllocateNothing) {
     options.num_threads = 1;
     PenetrationSolver solver(options);
     // (framed: the slab moves up a little every solve)
-    auto solve = [&](int k) {
+    // (kept copied in: clang before 16 cannot capture a structured binding)
+    auto solve = [&, kept = kept](int k) {
       frame.translation.z() = kept == kFramed ? 1e-4 * k : 0.0;
       *scene.positions[slab] = slab_start.rowwise() + frame.translation.transpose();
       solver.Solve(scene.objects);

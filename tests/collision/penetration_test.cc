@@ -4,7 +4,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstring>
 #include <limits>
 #include <map>
 #include <numbers>
@@ -14,6 +13,7 @@
 
 #include "collision/geometry.h"
 #include "mesh/error.h"
+#include "mesh/same_bits.h"
 #include "tests/collision/scene_helpers.h"
 
 namespace tetcosim {
@@ -39,8 +39,9 @@ std::map<std::tuple<int, int, int>, int> BruteForceInside(const TestScene& scene
         for (int v = 0; v < oa.mesh->num_vertices(); ++v) {
           if (a == b && (tet.array() == v).any()) continue;
           Eigen::Vector4d l;
-          if (!TetBarycentric(c[0], c[1], c[2], c[3], oa.positions->row(v).transpose(), l))
+          if (!TetBarycentric(c[0], c[1], c[2], c[3], oa.positions->row(v).transpose(), l)) {
             continue;
+          }
           if (l.minCoeff() < -kBarycentricTolerance) continue;
           auto key = std::make_tuple(a, v, b);
           auto it = best.find(key);
@@ -389,8 +390,8 @@ TEST(CollidingPoints, NonFiniteObjectsAreLeftOut) {
             const PenetrationResult& y = expected[i];
             EXPECT_EQ(std::tie(x.object, x.vertex, x.penetrated, x.tet, x.source),
                       std::tie(y.object, y.vertex, y.penetrated, y.tet, y.source));
-            EXPECT_EQ(std::memcmp(&x.depth, &y.depth, sizeof(double)), 0);
-            EXPECT_EQ(std::memcmp(x.direction.data(), y.direction.data(), 3 * sizeof(double)), 0);
+            EXPECT_TRUE(SameBits({&x.depth, 1}, {&y.depth, 1}));
+            EXPECT_TRUE(SameBits({x.direction.data(), 3}, {y.direction.data(), 3}));
           }
         }
       }
@@ -695,8 +696,8 @@ void ExpectSameResults(const std::vector<PenetrationResult>& expected,
     EXPECT_EQ(std::tie(x.object, x.vertex, x.penetrated, x.tet),
               std::tie(y.object, y.vertex, y.penetrated, y.tet))
         << what;
-    EXPECT_EQ(std::memcmp(&x.depth, &y.depth, sizeof(double)), 0) << what;
-    EXPECT_EQ(std::memcmp(x.direction.data(), y.direction.data(), 3 * sizeof(double)), 0) << what;
+    EXPECT_TRUE(SameBits({&x.depth, 1}, {&y.depth, 1})) << what;
+    EXPECT_TRUE(SameBits({x.direction.data(), 3}, {y.direction.data(), 3})) << what;
     EXPECT_EQ(x.source, y.source) << what;
   }
 }
@@ -975,8 +976,9 @@ void ExpectKeptSolvedAsNotKept(Kept how) {
     flagged[0].fixed = how == Kept::kFixed;
     if (how == Kept::kFramed) flagged[0].frame = &identity;
     bool loose_found = false;
-    for (const PenetrationResult& r : solver.Solve(flagged))
+    for (const PenetrationResult& r : solver.Solve(flagged)) {
       loose_found |= r.object == 0 && r.vertex == n;
+    }
     EXPECT_TRUE(loose_found);
   }
 }

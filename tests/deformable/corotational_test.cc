@@ -251,8 +251,9 @@ TEST(Corotational, InternalForcesSumToZeroForceAndTorque) {
   DeformableBody body(model, "capsule");
   std::mt19937 rng(4);
   std::uniform_real_distribution<double> u(-0.005, 0.005);
-  for (Eigen::Index v = 0; v < body.num_vertices(); ++v)
+  for (Eigen::Index v = 0; v < body.num_vertices(); ++v) {
     body.mutable_positions().row(v) += Eigen::RowVector3d(u(rng), u(rng), u(rng));
+  }
   Positions f = body.ElasticForces();
   Eigen::Vector3d force = f.colwise().sum().transpose();
   Eigen::Vector3d torque = Eigen::Vector3d::Zero();

@@ -94,6 +94,7 @@ TEST(DeformableBody, SystemProductsAgree) {
     body.MultiplySystem(v.data(), blocked.data());
     const Eigen::VectorXd sparse = body.system_matrix() * v;
     std::vector<Eigen::Matrix3d> diagonal;
+    diagonal.reserve(body.num_vertices());
     for (int u = 0; u < body.num_vertices(); ++u) diagonal.push_back(body.system_diagonal_block(u));
     settings.system_product = SystemProduct::kElementWise;
     body.PrepareStep(settings);
@@ -105,9 +106,11 @@ TEST(DeformableBody, SystemProductsAgree) {
     const double* values = body.system_matrix().valuePtr();
     for (int u = 0; u < body.num_vertices(); ++u) {
       Eigen::Matrix3d from_matrix;
-      for (int r = 0; r < 3; ++r)
-        for (int c = 0; c < 3; ++c)
+      for (int r = 0; r < 3; ++r) {
+        for (int c = 0; c < 3; ++c) {
           from_matrix(r, c) = values[row_start[3 * u + r] + model->diagonal_slot()[u] + c];
+        }
+      }
       EXPECT_LT((body.system_diagonal_block(u) - from_matrix).norm(), 1e-12 * from_matrix.norm());
       EXPECT_LT((diagonal[u] - from_matrix).norm(), 1e-12 * from_matrix.norm());
     }

@@ -136,8 +136,9 @@ TEST(RolloutMetrics, DirectionFiguresMatchBruteForce) {
         const TetMesh& mesh = *world.collision_objects()[r.object].mesh;
         for (size_t j = 0; j < results.size(); ++j) {
           const PenetrationResult& q = results[j];
-          if (q.object != r.object || q.penetrated != r.penetrated || q.vertex <= r.vertex)
+          if (q.object != r.object || q.penetrated != r.penetrated || q.vertex <= r.vertex) {
             continue;
+          }
           for (Eigen::Index e = 0; e < mesh.edges().rows(); ++e) {
             if (mesh.edges()(e, 0) == r.vertex && mesh.edges()(e, 1) == q.vertex) {
               sum += std::acos(std::clamp(r.direction.dot(q.direction), -1.0, 1.0)) * kDegrees;

@@ -321,7 +321,8 @@ TEST(WorldStep, SameInputAndThreadCountGiveBitIdenticalStates) {
   for (const auto& [scene, steps] : {std::pair<std::string, int>{"paper/cubes.xml", 30},
                                      std::pair<std::string, int>{"scenes/cube_on_box.xml", 300}}) {
     SCOPED_TRACE(scene);
-    auto run = [&](int threads) {
+    // (copied in: clang before 16 cannot capture a structured binding)
+    auto run = [&, scene = scene, steps = steps](int threads) {
       WorldOptions options;
       options.threads = threads;
       std::unique_ptr<World> world =
@@ -591,8 +592,9 @@ TEST(Rendering, FrameIsNotBlankAndShowsTheDeformable) {
   ASSERT_EQ(before.size(), 160u * 120u * 3u);
   // not blank: many distinct colours
   std::set<int> colours;
-  for (size_t i = 0; i < before.size(); i += 3)
+  for (size_t i = 0; i < before.size(); i += 3) {
     colours.insert(before[i] << 16 | before[i + 1] << 8 | before[i + 2]);
+  }
   EXPECT_GT(colours.size(), 50u);
   // move only the deformable: the image changes where it was and is
   world->deformable(0).mutable_positions().col(0).array() += 0.15;

@@ -134,8 +134,10 @@ TEST(PaperScenarios, MixedObjectsReachRestAndStayThere) {
       << (scenario.ok() ? "not at rest after 3 s" : scenario.message());
   const double rest_time = scenario.world().time();
   std::vector<Eigen::Vector3d> centres;
-  for (int i = 0; i < scenario.world().num_deformables(); ++i)
+  centres.reserve(scenario.world().num_deformables());
+  for (int i = 0; i < scenario.world().num_deformables(); ++i) {
     centres.push_back(scenario.world().deformable(i).CenterOfMass());
+  }
   double fastest = 0.0;
   ASSERT_TRUE(scenario.Run(1.0, [&](World& w) { fastest = std::max(fastest, MaxSpeed(w)); }))
       << scenario.message();
