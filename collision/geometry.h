@@ -125,13 +125,14 @@ inline bool SegmentTriangle(const Eigen::Vector3d& q, const Eigen::Vector3d& p,
 }
 
 // Whether the closed boxes [lo_a, hi_a] and [lo_b, hi_b] meet (touching
-// counts). All six comparisons, combined without branches: in the hot
-// loops the outcome is close to random, and mispredicted branches cost
-// more.
+// counts). All six comparisons, combined without branches (a bitwise and,
+// of ints: clang warns of one of bools): in the hot loops the outcome is
+// close to random, and mispredicted branches cost more.
 inline bool BoxesOverlap(const Eigen::Vector3d& lo_a, const Eigen::Vector3d& hi_a,
                          const Eigen::Vector3d& lo_b, const Eigen::Vector3d& hi_b) {
-  return (lo_a.x() <= hi_b.x()) & (lo_b.x() <= hi_a.x()) & (lo_a.y() <= hi_b.y()) &
-         (lo_b.y() <= hi_a.y()) & (lo_a.z() <= hi_b.z()) & (lo_b.z() <= hi_a.z());
+  return (static_cast<int>(lo_a.x() <= hi_b.x()) & static_cast<int>(lo_b.x() <= hi_a.x()) &
+          static_cast<int>(lo_a.y() <= hi_b.y()) & static_cast<int>(lo_b.y() <= hi_a.y()) &
+          static_cast<int>(lo_a.z() <= hi_b.z()) & static_cast<int>(lo_b.z() <= hi_a.z())) != 0;
 }
 
 // Below this length the interpolated vertex normals of SmoothNormal are
