@@ -20,8 +20,8 @@
 // threads are pinned to the two CPUs where the system allows it (else the
 // scheduler places them). scripts/bench-collision prints both beside its
 // speed-ups on two threads, which cannot be read without them: on the
-// development machine they moved within an hour between 70 and 490 ns and
-// 2.00 and 1.32.
+// development machine they moved within an hour between 69 and 560 ns and
+// between 2.00 and 1.03.
 
 #include <pthread.h>
 #include <sched.h>
@@ -60,6 +60,15 @@ bool ParseCpu(const char* text, int& cpu) {
   return valid;
 }
 
+// Waits until counter holds value. Spins (a wait is a few hundred ns), but
+// yields now and then: were both threads on one CPU, each hand-over would
+// otherwise wait for the scheduler's time slice, and the rounds take hours.
+void WaitFor(const std::atomic<long>& counter, long value) {
+  for (long spins = 1; counter.load(std::memory_order_acquire) != value; ++spins) {
+    if (spins % (1 << 16) == 0) std::this_thread::yield();
+  }
+}
+
 // Fastest round trip of the counter's cache line between the two CPUs, in
 // seconds; pinned tells whether both threads could be pinned.
 double RoundTrip(const int cpus[2], bool& pinned) {
@@ -70,8 +79,7 @@ double RoundTrip(const int cpus[2], bool& pinned) {
   std::thread responder([&] {
     responder_pinned = PinTo(cpus[1]);
     for (long i = 0; i < kRounds * kRoundTrips; ++i) {
-      while (counter.load(std::memory_order_acquire) != 2 * i + 1) {
-      }
+      WaitFor(counter, 2 * i + 1);
       counter.store(2 * i + 2, std::memory_order_release);
     }
   });
@@ -82,8 +90,7 @@ double RoundTrip(const int cpus[2], bool& pinned) {
     const Clock::time_point start = Clock::now();
     for (long end = i + kRoundTrips; i < end; ++i) {
       counter.store(2 * i + 1, std::memory_order_release);
-      while (counter.load(std::memory_order_acquire) != 2 * i + 2) {
-      }
+      WaitFor(counter, 2 * i + 2);
     }
     best = std::min(best, std::chrono::duration<double>(Clock::now() - start).count());
   }
@@ -139,13 +146,26 @@ void TimeWork(const int cpus[2], double alone[2], double& both) {
 
 int main(int argc, char** argv) {
   int cpus[2] = {0, 1};
-  if (argc != 1 && (argc != 3 || !ParseCpu(argv[1], cpus[0]) || !ParseCpu(argv[2], cpus[1]))) {
-    std::fprintf(stderr, "usage: two_cores [cpu_a cpu_b]  (two CPU numbers, default 0 1)\n");
+  if (argc != 1 && (argc != 3 || !ParseCpu(argv[1], cpus[0]) || !ParseCpu(argv[2], cpus[1]) ||
+                    cpus[0] == cpus[1])) {
+    std::fprintf(stderr, "usage: two_cores [cpu_a cpu_b]  (two different CPUs, default 0 1)\n");
     return 2;
   }
-  if (std::thread::hardware_concurrency() < 2) {
-    std::fprintf(stderr, "error: this machine has one CPU: there is no second core to measure\n");
+  cpu_set_t allowed;
+  if (sched_getaffinity(0, sizeof(allowed), &allowed) != 0 || CPU_COUNT(&allowed) < 2) {
+    std::fprintf(stderr,
+                 "error: this process may run on one CPU only: there is no second core "
+                 "to measure\n");
     return 1;
+  }
+  for (const int cpu : cpus) {
+    if (!CPU_ISSET(cpu, &allowed)) {
+      std::fprintf(stderr,
+                   "error: CPU %d is not one this process may run on (see `taskset -p $$`); "
+                   "give two that are\n",
+                   cpu);
+      return 2;
+    }
   }
   bool pinned = false;
   const double round_trip = RoundTrip(cpus, pinned);
