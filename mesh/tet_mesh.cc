@@ -59,8 +59,9 @@ void CheckAndCompact(RawMesh& raw, const TetMeshOptions& options,
   if (raw.tets.rows() > TetMesh::kMaxTets || raw.positions.rows() > TetMesh::kMaxVertices) {
     Fail(raw, "the mesh has " + std::to_string(raw.tets.rows()) + " tetrahedra and " +
                   std::to_string(raw.positions.rows()) + " vertices; tetcosim takes at most " +
-                  std::to_string(TetMesh::kMaxTets) + " of each in one mesh (its indices are " +
-                  "32-bit): mesh the body coarser or split it");
+                  std::to_string(TetMesh::kMaxTets) + " tetrahedra and " +
+                  std::to_string(TetMesh::kMaxVertices) + " vertices in one mesh (its indices " +
+                  "are 32-bit): mesh the body coarser or split it");
   }
   const int num_vertices = static_cast<int>(raw.positions.rows());
   const int num_tets = static_cast<int>(raw.tets.rows());
