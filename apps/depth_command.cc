@@ -92,6 +92,8 @@ void RunDepth(const DepthOptions& options) {
                       {"closest", stats.closest},
                       {"unresolved", stats.unresolved},
                       {"intersection_edges", stats.intersection_edges},
+                      {"tet_tests", stats.tet_tests},
+                      {"triangle_tests", stats.triangle_tests},
                       {"layers", stats.layers},
                       {"max_depth", stats.max_depth},
                       {"mean_depth", stats.mean_depth},

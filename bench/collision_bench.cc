@@ -16,8 +16,10 @@
 // Counters: colliding points and intersection edges (stage 2) per solve
 // (the mean over the solves of a moving scene), microseconds
 // per colliding point (from the solver's own wall-clock timing of Solve),
-// the same for resolving the points found (all but stage 1), and
-// milliseconds per stage.
+// the same for resolving the points found (all but stage 1), milliseconds
+// per stage, and the work behind a point (a solve's counts repeat
+// exactly): vertex-in-tetrahedron tests and intersection edges per point,
+// segment-triangle tests per edge.
 // Arguments: (scene parameter, method 0 consistent / 1 closest, threads).
 
 #include <benchmark/benchmark.h>
@@ -123,12 +125,25 @@ void AddCubePairs(Scene& scene, double overlap, int copies) {
 // 2 and 3), propagation (4), closest features
 constexpr int kStages = 6;
 
-// `colliding` and `edges`: summed over the timed solves
-void Report(benchmark::State& state, double total, const double stages[kStages], double colliding,
-            double edges) {
+// What the timed solves found and did, summed over them
+struct Work {
+  double colliding = 0.0;       // colliding points (results)
+  double edges = 0.0;           // intersection edges
+  double tet_tests = 0.0;       // vertex-in-tetrahedron tests (stage 1)
+  double triangle_tests = 0.0;  // segment-triangle tests (stage 2)
+};
+
+void Report(benchmark::State& state, double total, const double stages[kStages], const Work& work) {
   const double iterations = static_cast<double>(state.iterations());
+  const double colliding = work.colliding;
   state.counters["colliding"] = colliding / iterations;  // per solve
-  state.counters["edges"] = edges / iterations;
+  state.counters["edges"] = work.edges / iterations;
+  // the work behind a point: what the time per point is made of (a solve's
+  // counts are the same on every run and thread count)
+  state.counters["tet_tests_per_point"] = colliding > 0 ? work.tet_tests / colliding : 0.0;
+  state.counters["edges_per_point"] = colliding > 0 ? work.edges / colliding : 0.0;
+  state.counters["triangle_tests_per_edge"] =
+      work.edges > 0 ? work.triangle_tests / work.edges : 0.0;
   state.counters["us_per_point"] = colliding > 0 ? total / colliding * 1e6 : 0.0;
   // what the paper times as resolving a colliding point: everything after
   // stage 1 has found it (surfaces, stages 2 to 4, closest features)
@@ -156,7 +171,8 @@ void Run(benchmark::State& state, Scene& scene) {
     if (moving) scene.ShowStep(step);
     solver.Solve(scene.objects);
   }
-  double total = 0.0, colliding = 0.0, edges = 0.0;
+  double total = 0.0;
+  Work work;
   double stages[kStages] = {};
   long solve = 0;
   for (auto _ : state) {
@@ -170,11 +186,14 @@ void Run(benchmark::State& state, Scene& scene) {
     total += t.total;
     const double s[kStages] = {t.hash, t.inside, t.surfaces, t.intersect, t.propagate, t.closest};
     for (int i = 0; i < kStages; ++i) stages[i] += s[i];
-    colliding += solver.stats().colliding;
-    edges += solver.stats().intersection_edges;
+    const PenetrationStats& stats = solver.stats();
+    work.colliding += stats.colliding;
+    work.edges += stats.intersection_edges;
+    work.tet_tests += static_cast<double>(stats.tet_tests);
+    work.triangle_tests += static_cast<double>(stats.triangle_tests);
     benchmark::DoNotOptimize(solver.results().data());
   }
-  Report(state, total, stages, colliding, edges);
+  Report(state, total, stages, work);
 }
 
 // The scenes the collision issue names, each twice: as built (BM_TwoCubes,

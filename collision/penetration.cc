@@ -1010,6 +1010,7 @@ int PenetrationSolver::BeginSearch(std::span<const CollisionObject> objects, int
   for (ThreadScratch& scratch : thread_scratch_) {
     scratch.hits.clear();
     scratch.large_tets.clear();
+    scratch.tet_tests = 0;
   }
   if (!any_deformable) return 0;
   return any_kept_ ? static_cast<int>(search_chunks_.size()) : chunk_offset_[num_objects];
@@ -1024,7 +1025,6 @@ int PenetrationSolver::BeginSearch(std::span<const CollisionObject> objects, int
 // of a partner object: nothing can be inside.)
 void PenetrationSolver::SearchChunk(std::span<const CollisionObject> objects, int gc) {
   ThreadScratch& scratch = thread_scratch_[omp_get_thread_num()];
-  std::vector<Hit>& found = scratch.hits;
   HashedVertices& gathered = scratch.gathered;
   const int b = static_cast<int>(std::upper_bound(chunk_offset_.begin(), chunk_offset_.end(), gc) -
                                  chunk_offset_.begin()) -
@@ -1074,7 +1074,7 @@ void PenetrationSolver::SearchChunk(std::span<const CollisionObject> objects, in
   }
   if (chunk_size == 0) return;
   auto test = [&](SearchedTet& tet, int e, int a) {
-    TestVertexInTet(*object_b.mesh, b, tet, e, a, found);
+    TestVertexInTet(*object_b.mesh, b, tet, e, a, scratch);
   };
   // every tet tests the vertices in [lo, hi] (the region where the
   // vertices of partner entry `partner`, or of all partners (-1), can be)
@@ -1166,7 +1166,7 @@ void PenetrationSolver::SearchChunk(std::span<const CollisionObject> objects, in
 }
 
 void PenetrationSolver::TestVertexInTet(const TetMesh& mesh_b, int b, SearchedTet& tet, int e,
-                                        int a, std::vector<Hit>& found) const {
+                                        int a, ThreadScratch& scratch) const {
   if (a == b) {  // self-collision: not the tet's own vertices
     const int v = hashed_.vertex[e] - vertex_offset_[a];
     const auto vertices = mesh_b.tets().row(tet.t);
@@ -1177,12 +1177,15 @@ void PenetrationSolver::TestVertexInTet(const TetMesh& mesh_b, int b, SearchedTe
     tet.have_coordinates = true;
   }
   if (tet.coordinates.degenerate()) return;
+  ++scratch.tet_tests;
   const Eigen::Vector4d l =
       tet.coordinates(Eigen::Vector3d(hashed_.x[e], hashed_.y[e], hashed_.z[e]));
   // (kBarycentricTolerance: a vertex on a face shared by two tets is inside
   // both in exact arithmetic, but rounding may put it just outside each;
   // MergeHits keeps the deepest tet)
-  if (l.minCoeff() >= -kBarycentricTolerance) found.push_back({hashed_.vertex[e], b, tet.t, l});
+  if (l.minCoeff() >= -kBarycentricTolerance) {
+    scratch.hits.push_back({hashed_.vertex[e], b, tet.t, l});
+  }
 }
 
 // Tetrahedra over more than kMaxTetCells cells (a coarse body's among fine
@@ -1218,11 +1221,11 @@ void PenetrationSolver::SearchLargeTets(std::span<const CollisionObject> objects
         const auto vertices = object_b.mesh->tets().row(large.tet);
         for (int k = 0; k < 4; ++k) tet.corner[k] = x.row(vertices[k]).transpose();
         const int a_only = large.partner >= 0 ? partners_[large.partner].object : -1;
-        std::vector<Hit>& found = thread_scratch_[omp_get_thread_num()].hits;
+        ThreadScratch& scratch = thread_scratch_[omp_get_thread_num()];
         auto visit = [&](int e) {
           const int a = hashed_.object[e];
           if (a_only >= 0 ? a == a_only : MayPenetrate(objects, a, b)) {
-            TestVertexInTet(*object_b.mesh, b, tet, e, a, found);
+            TestVertexInTet(*object_b.mesh, b, tet, e, a, scratch);
           }
         };
         const Box4 box(large.lo, large.hi);
@@ -1286,6 +1289,7 @@ void PenetrationSolver::MergeHits() {
   int num_found = 0;
   for (const ThreadScratch& scratch : thread_scratch_) {
     num_found += static_cast<int>(scratch.hits.size());
+    stats_.tet_tests += scratch.tet_tests;
   }
   hits_.resize(num_found);
   if (static_cast<long>(num_found) * kMinVerticesPerCountedHit < num_vertices) {
@@ -1645,6 +1649,7 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
     }
     if (scratch.seen.size() < triangles_.size()) scratch.seen.resize(triangles_.size(), 0);
     scratch.edges = 0;
+    scratch.triangle_tests = 0;
     scratch.candidates.clear();
   }
   auto resolve = [&](int h) {  // stages 2 and 3 for hit h
@@ -1710,6 +1715,7 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
         }
       };
       auto test_triangle = [&](int index) {
+        ++scratch.triangle_tests;
         const TriangleGeometry& triangle = triangle_geometry_[index];
         double t, u, w;
         if (SegmentTriangle(q, dir, dir_length, triangle.corner[0], triangle.edge[0],
@@ -1727,6 +1733,7 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
           const SmallTriangleGroup& group = groups[g];
           const unsigned overlapping = segment_box.Overlapping(group.lo, group.hi);
           if (overlapping == 0) continue;
+          scratch.triangle_tests += std::popcount(overlapping);
           Double4 t, u, w;
           const unsigned crossed =
               overlapping & SegmentTriangles4(q, dir, dir_length, group.corner, group.edge0,
@@ -1857,7 +1864,10 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
         threads, hit_group_offset_, [&](int i) { resolve(hit_order_[i]); }, grab);
   }
   int edges = 0;
-  for (int i = 0; i < num_threads; ++i) edges += thread_scratch_[i].edges;
+  for (int i = 0; i < num_threads; ++i) {
+    edges += thread_scratch_[i].edges;
+    stats_.triangle_tests += thread_scratch_[i].triangle_tests;
+  }
   stats_.intersection_edges = edges;
   timings_.intersect += SecondsSince(start);
 }

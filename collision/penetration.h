@@ -137,6 +137,12 @@ struct PenetrationStats {
   int closest = 0;     // kClosest results
   int unresolved = 0;  // colliding points that got no value (fallback off)
   int intersection_edges = 0;
+  // the work behind them: vertex-in-tetrahedron tests (stage 1: barycentric
+  // coordinates of a vertex found in a tetrahedron's box) and
+  // segment-triangle tests (stage 2: an intersection edge against a
+  // triangle whose box meets the edge's)
+  std::int64_t tet_tests = 0;
+  std::int64_t triangle_tests = 0;
   int layers = 0;  // propagation layers
   // objects left out of the solve for an infinite or NaN position (the
   // caller's state has diverged; the rest of the scene is solved as if
@@ -259,9 +265,11 @@ class PenetrationSolver {
     std::vector<std::uint32_t> seen;   // stage 2: per triangle entry, the query
                                        // in which it was last tested
     std::uint32_t query = 0;
-    int edges = 0;                // stage 2: intersection edges met
-    std::vector<int> candidates;  // stage 4: points next to the layer's points,
-                                  // for the next layer (the first: listed in stage 2)
+    int edges = 0;                    // stage 2: intersection edges met
+    std::int64_t tet_tests = 0;       // stage 1: PenetrationStats::tet_tests
+    std::int64_t triangle_tests = 0;  // stage 2: PenetrationStats::triangle_tests
+    std::vector<int> candidates;      // stage 4: points next to the layer's points,
+                                      // for the next layer (the first: listed in stage 2)
   };
 
   // What the solver keeps of a fixed object (CollisionObject::fixed) or one
@@ -328,9 +336,9 @@ class PenetrationSolver {
   int BeginSearch(std::span<const CollisionObject> objects, int num_threads);
   void SearchChunk(std::span<const CollisionObject> objects, int chunk);
   // Whether entry e of hashed_, a vertex of object a, lies inside `tet` of
-  // object b; if so, adds the hit to `found`.
+  // object b; if so, adds the hit to the thread's hits.
   void TestVertexInTet(const TetMesh& mesh_b, int b, SearchedTet& tet, int e, int a,
-                       std::vector<Hit>& found) const;
+                       ThreadScratch& scratch) const;
   // the large tetrahedra the chunks met, against the vertices in their
   // boxes: through coarse_hash_ when they are many, else each against
   // every entry of hashed_

@@ -153,6 +153,41 @@ TEST(CollidingPoints, HashMatchesBruteForceInCrowdedScenes) {
   }
 }
 
+// The work counted in PenetrationStats: every colliding point was found by
+// a vertex-in-tetrahedron test, and every border point's crossings by
+// segment-triangle tests, while the hash leaves out nearly all of the
+// pairs a brute-force search would test (the paper's cubes 10% into each
+// other: about 500 tests, against about a million pairs).
+TEST(CollidingPoints, WorkIsCountedAndPrunedByTheHash) {
+  TestScene scene;
+  const char* cube = "box:size=0.05,0.05,0.05:res=5,5,10:split=5";
+  scene.Add(TetMesh::Build(MakeShape(cube)), Pose({0, 0, 0}));
+  scene.Add(TetMesh::Build(MakeShape(cube)), Pose({0.09, 0.011, -0.007}, 0.1));
+  PenetrationSolver solver;
+  solver.Solve(scene.objects);
+  const PenetrationStats& stats = solver.stats();
+  ASSERT_GT(stats.colliding, 50);
+  ASSERT_GT(stats.border, 20);
+  const TetMesh& a = *scene.meshes[0];
+  const TetMesh& b = *scene.meshes[1];
+  const std::int64_t brute_tet_pairs =
+      std::int64_t{a.num_vertices()} * b.num_tets() + std::int64_t{b.num_vertices()} * a.num_tets();
+  EXPECT_GE(stats.tet_tests, stats.colliding);
+  EXPECT_LE(stats.tet_tests, brute_tet_pairs / 100);
+  const std::int64_t brute_triangle_pairs =
+      std::int64_t{stats.intersection_edges} * std::max(a.surface().rows(), b.surface().rows());
+  EXPECT_GE(stats.intersection_edges, stats.border);
+  EXPECT_GE(stats.triangle_tests, stats.border);
+  EXPECT_LE(stats.triangle_tests, brute_triangle_pairs / 20);
+  // the closest method has no stage 2
+  PenetrationOptions closest;
+  closest.method = DepthMethod::kClosest;
+  PenetrationSolver closest_solver(closest);
+  closest_solver.Solve(scene.objects);
+  EXPECT_EQ(closest_solver.stats().tet_tests, stats.tet_tests);
+  EXPECT_EQ(closest_solver.stats().triangle_tests, 0);
+}
+
 TEST(CollidingPoints, RowsAlongEachAxisMatchBruteForce) {
   // the broad phase sweeps along the axis where the objects spread most: a
   // row of overlapping bodies along x, y or z (jittered a little across
@@ -707,16 +742,23 @@ void ExpectSameResults(const std::vector<PenetrationResult>& expected,
 void ExpectSameResultsWhateverTheThreads(const TestScene& scene, size_t min_results) {
   for (DepthMethod method : {DepthMethod::kConsistent, DepthMethod::kClosest}) {
     std::vector<PenetrationResult> runs[3];
+    PenetrationStats stats[3];
     for (int threads : {1, 2, 3}) {
       PenetrationOptions options;
       options.method = method;
       options.num_threads = threads;
       PenetrationSolver solver(options);
       runs[threads - 1] = solver.Solve(scene.objects);
+      stats[threads - 1] = solver.stats();
     }
     ASSERT_GT(runs[0].size(), min_results);
     for (int threads : {2, 3}) {
       ExpectSameResults(runs[0], runs[threads - 1], std::to_string(threads) + " threads");
+      // the same work, split differently
+      const PenetrationStats& split = stats[threads - 1];
+      EXPECT_EQ(split.tet_tests, stats[0].tet_tests) << threads << " threads";
+      EXPECT_EQ(split.intersection_edges, stats[0].intersection_edges) << threads << " threads";
+      EXPECT_EQ(split.triangle_tests, stats[0].triangle_tests) << threads << " threads";
     }
   }
 }
