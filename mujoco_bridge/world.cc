@@ -645,12 +645,18 @@ void World::UpdateProxies() {
         SameBits({p_WB.data(), 3}, {frame.translation.data(), 3})) {
       continue;
     }
+    // (the box of the positions as they are written: the solver then need
+    // not pass over them again for it)
     const Positions& rest = proxy->mesh->positions();
+    PositionBounds bounds;
     for (Eigen::Index v = 0; v < rest.rows(); ++v) {
-      proxy->positions.row(v) = (X_WB * rest.row(v).transpose()).transpose();
+      const Eigen::Vector3d p_W = X_WB * rest.row(v).transpose();
+      proxy->positions.row(v) = p_W.transpose();
+      bounds.Add(p_W);
     }
     frame.rotation = R_WB;
     frame.translation = p_WB;
+    frame.bounds = bounds;
     proxy->placements = std::min(proxy->placements + 1, 2);
   }
 }

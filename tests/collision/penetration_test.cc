@@ -891,7 +891,17 @@ TEST(Determinism, ReusedSolverMatchesANewOne) {
 // Framed (CollisionObject::frame): the kept objects turn and move rigidly
 // instead, their positions the frame applied to their first ones, and the
 // same holds; at `moved_at` they are shifted without their frame saying so.
-enum class Kept { kFixed, kFramed };
+// Framed with bounds: the frames also carry the box of the positions
+// (RigidFrame::bounds), as the bridge gives them, so that the solver does
+// not pass over the positions for it.
+enum class Kept { kFixed, kFramed, kFramedWithBounds };
+
+PositionBounds BoundsOf(const Positions& x) {
+  PositionBounds bounds;
+  for (Eigen::Index v = 0; v < x.rows(); ++v) bounds.Add(x.row(v).transpose());
+  return bounds;
+}
+
 void ExpectKeptSolvedAsNotKept(TestScene& scene, const std::vector<int>& kept, int min_results,
                                int moved_at = -1, Kept how = Kept::kFixed) {
   constexpr int kSolves = 8;
@@ -899,7 +909,7 @@ void ExpectKeptSolvedAsNotKept(TestScene& scene, const std::vector<int>& kept, i
   std::vector<RigidFrame> frames(scene.objects.size());
   for (int o : kept) {
     flagged[o].fixed = how == Kept::kFixed;
-    if (how == Kept::kFramed) flagged[o].frame = &frames[o];
+    if (how != Kept::kFixed) flagged[o].frame = &frames[o];
   }
   const std::vector<Positions> start = [&] {
     std::vector<Positions> x;
@@ -946,11 +956,14 @@ void ExpectKeptSolvedAsNotKept(TestScene& scene, const std::vector<int>& kept, i
         }
         const int moved = solve == moved_at || (moved_at >= 0 && solve == moved_at + 1);
         if (solve == moved_at) *scene.positions[kept[0]] = scene.positions[kept[0]]->array() + 1e-4;
+        if (how == Kept::kFramedWithBounds) {
+          for (int o : kept) frames[o].bounds = BoundsOf(*scene.positions[o]);
+        }
         const std::vector<PenetrationResult> expected = without.Solve(scene.objects);
         ExpectSameResults(expected, with_flag.Solve(flagged), what);
         const int num_kept = static_cast<int>(kept.size()) - moved;
         EXPECT_EQ(with_flag.stats().fixed_objects, how == Kept::kFixed ? num_kept : 0) << what;
-        EXPECT_EQ(with_flag.stats().framed_objects, how == Kept::kFramed ? num_kept : 0) << what;
+        EXPECT_EQ(with_flag.stats().framed_objects, how == Kept::kFixed ? 0 : num_kept) << what;
         EXPECT_EQ(without.stats().fixed_objects + without.stats().framed_objects, 0) << what;
         results += static_cast<int>(expected.size());
       }
@@ -1031,6 +1044,57 @@ TEST(FixedObjects, SameResultsAsNotFixed) {
 
 TEST(FramedObjects, SameResultsAsWithoutFrame) {
   ExpectKeptSolvedAsNotKept(Kept::kFramed);
+}
+
+TEST(FramedObjects, SameResultsWithTheBoxGiven) {
+  ExpectKeptSolvedAsNotKept(Kept::kFramedWithBounds);
+}
+
+// PositionBounds against the box and finiteness computed coordinate by
+// coordinate; given as RigidFrame::bounds, a box of other positions (kept
+// from before a move, or of a vertex gone to infinity) is a clear error,
+// and bounds of positions that are not all finite leave the object out, as
+// the solver's own pass does.
+TEST(FramedObjects, GivenBoxIsCheckedAndNonFiniteLeftOut) {
+  TestScene scene;
+  scene.Add(TetMesh::Build(MakeShape("box:size=0.1,0.1,0.02:res=10,10,2")), Pose({0, 0, 0}),
+            /*rigid=*/true);
+  scene.Add("sphere:size=0.02:res=2", {0.01, 0.02, 0.03});
+  const Positions& x = *scene.positions[0];
+  const PositionBounds bounds = BoundsOf(x);
+  EXPECT_TRUE(bounds.finite());
+  for (int k = 0; k < 3; ++k) {
+    EXPECT_EQ(bounds.lo[k], x.col(k).minCoeff());
+    EXPECT_EQ(bounds.hi[k], x.col(k).maxCoeff());
+  }
+  RigidFrame frame;
+  frame.bounds = bounds;
+  std::vector<CollisionObject> framed = scene.objects;
+  framed[0].frame = &frame;
+  PenetrationSolver solver, without;
+  ExpectSameResults(without.Solve(scene.objects), solver.Solve(framed), "as given");
+  ASSERT_GT(solver.results().size(), 10u);
+  // moved, the box not
+  *scene.positions[0] = scene.positions[0]->array() + 0.01;
+  try {
+    solver.Solve(framed);
+    ADD_FAILURE() << "a box of other positions was taken";
+  } catch (const Error& error) {
+    const std::string message = error.what();
+    EXPECT_NE(message.find("object 0"), std::string::npos) << message;
+    EXPECT_NE(message.find("RigidFrame::bounds"), std::string::npos) << message;
+  }
+  frame.bounds = BoundsOf(*scene.positions[0]);
+  ExpectSameResults(without.Solve(scene.objects), solver.Solve(framed), "moved, box again");
+  // the last vertex at infinity: the given box must say so, and the object
+  // is left out
+  (*scene.positions[0])(x.rows() - 1, 2) = std::numeric_limits<double>::infinity();
+  EXPECT_THROW(solver.Solve(framed), Error);
+  frame.bounds = BoundsOf(*scene.positions[0]);
+  EXPECT_FALSE(frame.bounds->finite());
+  ExpectSameResults(without.Solve(scene.objects), solver.Solve(framed), "not finite");
+  EXPECT_EQ(solver.stats().non_finite_objects, 1);
+  EXPECT_EQ(without.stats().non_finite_objects, 1);
 }
 
 // A framed body carried far from where it was kept (the rounding of its
