@@ -80,6 +80,9 @@ struct PositionBounds {
                   std::bit_cast<std::uint64_t>(p.z() - p.z());
   }
   bool finite() const { return non_finite == 0; }
+
+  // Add of every position of x, in order.
+  static PositionBounds Of(const Positions& x);
 };
 
 // A rigid motion: a point's world position is rotation * p + translation

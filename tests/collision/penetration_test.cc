@@ -896,12 +896,6 @@ TEST(Determinism, ReusedSolverMatchesANewOne) {
 // not pass over the positions for it.
 enum class Kept { kFixed, kFramed, kFramedWithBounds };
 
-PositionBounds BoundsOf(const Positions& x) {
-  PositionBounds bounds;
-  for (Eigen::Index v = 0; v < x.rows(); ++v) bounds.Add(x.row(v).transpose());
-  return bounds;
-}
-
 void ExpectKeptSolvedAsNotKept(TestScene& scene, const std::vector<int>& kept, int min_results,
                                int moved_at = -1, Kept how = Kept::kFixed) {
   constexpr int kSolves = 8;
@@ -957,7 +951,7 @@ void ExpectKeptSolvedAsNotKept(TestScene& scene, const std::vector<int>& kept, i
         const int moved = solve == moved_at || (moved_at >= 0 && solve == moved_at + 1);
         if (solve == moved_at) *scene.positions[kept[0]] = scene.positions[kept[0]]->array() + 1e-4;
         if (how == Kept::kFramedWithBounds) {
-          for (int o : kept) frames[o].bounds = BoundsOf(*scene.positions[o]);
+          for (int o : kept) frames[o].bounds = PositionBounds::Of(*scene.positions[o]);
         }
         const std::vector<PenetrationResult> expected = without.Solve(scene.objects);
         ExpectSameResults(expected, with_flag.Solve(flagged), what);
@@ -1061,7 +1055,7 @@ TEST(FramedObjects, GivenBoxIsCheckedAndNonFiniteLeftOut) {
             /*rigid=*/true);
   scene.Add("sphere:size=0.02:res=2", {0.01, 0.02, 0.03});
   const Positions& x = *scene.positions[0];
-  const PositionBounds bounds = BoundsOf(x);
+  const PositionBounds bounds = PositionBounds::Of(x);
   EXPECT_TRUE(bounds.finite());
   for (int k = 0; k < 3; ++k) {
     EXPECT_EQ(bounds.lo[k], x.col(k).minCoeff());
@@ -1084,13 +1078,13 @@ TEST(FramedObjects, GivenBoxIsCheckedAndNonFiniteLeftOut) {
     EXPECT_NE(message.find("object 0"), std::string::npos) << message;
     EXPECT_NE(message.find("RigidFrame::bounds"), std::string::npos) << message;
   }
-  frame.bounds = BoundsOf(*scene.positions[0]);
+  frame.bounds = PositionBounds::Of(*scene.positions[0]);
   ExpectSameResults(without.Solve(scene.objects), solver.Solve(framed), "moved, box again");
   // the last vertex at infinity: the given box must say so, and the object
   // is left out
   (*scene.positions[0])(x.rows() - 1, 2) = std::numeric_limits<double>::infinity();
   EXPECT_THROW(solver.Solve(framed), Error);
-  frame.bounds = BoundsOf(*scene.positions[0]);
+  frame.bounds = PositionBounds::Of(*scene.positions[0]);
   EXPECT_FALSE(frame.bounds->finite());
   ExpectSameResults(without.Solve(scene.objects), solver.Solve(framed), "not finite");
   EXPECT_EQ(solver.stats().non_finite_objects, 1);
