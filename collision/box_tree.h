@@ -113,7 +113,7 @@ class BoxTree {
     int first;  // leaf: its first entry in items_; inner: its right child
     int count;  // leaf: its number of items; inner: 0 (left child: the next node)
   };
-  // (always inlined, as BoxDistance2: penetration.cc is large enough that
+  // (always inlined, as BoxDistance2: in the solver's files, large enough,
   // g++ would call it)
   [[gnu::always_inline]] static double Distance2(const Node& node, const Eigen::Vector3d& p) {
     return BoxDistance2(node.lo, node.hi, p);

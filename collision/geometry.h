@@ -166,7 +166,7 @@ bool SmoothNormal(const Eigen::Vector3d& n0, const Eigen::Vector3d& n1, const Ei
                                                   const Eigen::Vector3d& p) {
   // (Eigen's (lo - p).cwiseMax(p - hi).cwiseMax(0).squaredNorm(), the same
   // operations in the same order, written out and always inlined: once
-  // penetration.cc grew, g++ stopped inlining Eigen's into the box tree's
+  // the solver's code grew, g++ stopped inlining Eigen's into the box tree's
   // searches, and closest features took 10% more instructions; with SSE2,
   // x and y side by side, as Eigen did: written out one by one, 6% more)
 #if defined(__SSE2__)

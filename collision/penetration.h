@@ -429,8 +429,20 @@ class PenetrationSolver {
 
   // the chunk of stage 1's i-th search
   int SearchedChunk(int i) const { return any_kept_ ? search_chunks_[i] : i; }
-  int FindHit(int vertex, int penetrated) const;
-  Eigen::Vector3d Position(int global_vertex) const;
+  // (inline: stages 2 and 4 call these for every neighbour of a point)
+  // the hit of a global vertex in object `penetrated`, or -1
+  int FindHit(int vertex, int penetrated) const {
+    const auto [begin, end] = hit_range_[vertex];
+    for (int h = begin; h < end; ++h) {
+      if (hits_[h].penetrated == penetrated) return h;
+    }
+    return -1;
+  }
+  // a global vertex's position
+  Eigen::Vector3d Position(int global_vertex) const {
+    const int object = vertex_object_[global_vertex];
+    return positions_[object]->row(global_vertex - vertex_offset_[object]).transpose();
+  }
   // nearest point of B's surface to p (excluding triangles at vertex
   // `exclude` of B, or -1); returns false if B has no usable triangle
   bool ClosestSurfacePoint(std::span<const CollisionObject> objects, int b,

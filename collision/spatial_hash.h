@@ -125,9 +125,13 @@ class SpatialHash {
 
   // Calls visit(range) with the bucket of (cell, key) of every cell from lo
   // to hi (inclusive, z outermost, then y, then x).
+  // (Always inlined, as stage 1's lambdas that call it: the caller's loop
+  // over a chunk's cells is the solver's innermost; left to g++, which
+  // inlines by how large a file's functions grow, it was called out of line
+  // in some builds, 3% more instructions in stage 1.)
   template <typename Visit>
-  void ForEachBucket(const Eigen::Vector3i& lo, const Eigen::Vector3i& hi, int key,
-                     Visit&& visit) const {
+  [[gnu::always_inline]] void ForEachBucket(const Eigen::Vector3i& lo, const Eigen::Vector3i& hi,
+                                            int key, Visit&& visit) const {
     for (int k = lo.z(); k <= hi.z(); ++k) {
       for (int j = lo.y(); j <= hi.y(); ++j) {
         for (int i = lo.x(); i <= hi.x(); ++i) visit(Find({i, j, k}, key));
