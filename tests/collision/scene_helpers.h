@@ -3,7 +3,10 @@
 // Small scenes of tetrahedral objects for collision tests.
 
 #include <Eigen/Geometry>
+#include <cmath>
 #include <memory>
+#include <numbers>
+#include <random>
 #include <vector>
 
 #include "collision/penetration.h"
@@ -41,6 +44,53 @@ inline Eigen::Isometry3d Pose(const Eigen::Vector3d& translation, double angle =
   X.linear() = Eigen::AngleAxisd(angle, axis.normalized()).toRotationMatrix();
   X.translation() = translation;
   return X;
+}
+
+// Two tetrahedra on the two sides of a triangle (radius r, apexes h above
+// and below): 6 surface triangles, not a multiple of four (the solver keeps
+// a small body's triangles in groups of four; the last group's other lanes
+// must meet nothing).
+inline RawMesh Bipyramid(double r, double h) {
+  RawMesh raw;
+  raw.positions.resize(5, 3);
+  for (int i = 0; i < 3; ++i) {
+    const double a = 2.0 * std::numbers::pi * i / 3.0;
+    raw.positions.row(i) << r * std::cos(a), r * std::sin(a), 0.0;
+  }
+  raw.positions.row(3) << 0.0, 0.0, h;
+  raw.positions.row(4) << 0.0, 0.0, -h;
+  raw.tets.resize(2, 4);
+  raw.tets << 0, 1, 2, 3, 0, 2, 1, 4;
+  raw.source = "bipyramid";
+  return raw;
+}
+
+// A pile of small bodies in and around a large one: a large box
+// (rigid in odd trials), 14 small bodies (the paper's 20-tet spheres and a
+// bipyramid of 6 triangles among them), and a bar folded into itself with
+// self-collision.
+inline TestScene CrowdedScene(int trial) {
+  std::mt19937 rng(11 + trial);
+  std::uniform_real_distribution<double> offset(-0.07, 0.07);
+  std::uniform_real_distribution<double> angle(0.0, std::numbers::pi);
+  const char* shapes[] = {"sphere:size=0.03:res=0", "box:size=0.03,0.02,0.025:res=2",
+                          "capsule:size=0.01,0.02:res=2"};
+  TestScene scene;
+  scene.Add(TetMesh::Build(MakeShape("box:size=0.12,0.12,0.12:res=4")), Pose({0, 0, 0}),
+            /*rigid=*/trial % 2 == 1);
+  for (int k = 0; k < 14; ++k) {
+    Eigen::Vector3d axis(offset(rng), offset(rng), offset(rng) + 0.01);
+    scene.Add(TetMesh::Build(k % 4 == 3 ? Bipyramid(0.03, 0.025) : MakeShape(shapes[k % 3])),
+              Pose({offset(rng), offset(rng), offset(rng)}, angle(rng), axis),
+              /*rigid=*/k % 5 == 4);
+  }
+  int bar = scene.Add(TetMesh::Build(MakeShape("box:size=0.2,0.02,0.02:res=10,1,1")),
+                      Pose({0, 0.01 * trial, 0}), false, /*self_collision=*/true);
+  Positions& x = *scene.positions[bar];
+  for (Eigen::Index v = 0; v < x.rows(); ++v) {
+    if (x(v, 0) > 0.19) x(v, 0) = -0.03;
+  }
+  return scene;
 }
 
 }  // namespace tetcosim::testing
