@@ -37,6 +37,12 @@ PositionBounds PositionBounds::Of(const Positions& x) {
 // a fixed or framed object's vertices compared every solve
 // (CollisionObject::fixed, ::frame)
 constexpr int kKeptSamples = 16;
+// Vertex i of n + 1 spread evenly over a numbering of num_vertices: i = 0 is
+// the first, i = n the last (the samples of a kept object and of a given
+// box's check).
+long SpreadVertex(long i, long n, long num_vertices) {
+  return (num_vertices - 1) * i / n;
+}
 // A framed object's positions taken into its body frame differ from one
 // solve to the next by rounding, a few ulp of the coordinates' magnitude
 // (body-frame and translation): a sample may differ by kFrameRounding
@@ -330,7 +336,7 @@ void PenetrationSolver::CheckGivenBounds(const CollisionObject& object, int o) {
   const Positions& x = *object.positions;
   const long num_vertices = x.rows();
   for (long i = 0; i <= kKeptSamples && num_vertices > 0; ++i) {
-    const long v = (num_vertices - 1) * i / kKeptSamples;
+    const long v = SpreadVertex(i, kKeptSamples, num_vertices);
     const Eigen::Vector3d p = x.row(v).transpose();
     const bool finite = p.allFinite();
     const bool inside =
@@ -395,8 +401,7 @@ bool PenetrationSolver::KeepObject(const CollisionObject& object, KeptObject& ke
     kept.sample.resize(num_samples);
     for (int i = 0; i < num_samples; ++i) {
       // spread over the numbering, the last vertex among them
-      kept.sample_vertex[i] =
-          static_cast<int>(static_cast<long>(num_vertices - 1) * (i + 1) / num_samples);
+      kept.sample_vertex[i] = static_cast<int>(SpreadVertex(i + 1, num_samples, num_vertices));
       kept.sample[i] = position(kept.sample_vertex[i]);
     }
   }
