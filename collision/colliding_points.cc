@@ -150,7 +150,7 @@ void PenetrationSolver::FindCollidingPointsAndHashSurfaces(std::span<const Colli
   const Clock::time_point start = Clock::now();
   const int num_objects = static_cast<int>(objects.size());
   const int num_vertices = vertex_offset_[num_objects];
-  surface_list_.assign(partnered_.begin(), partnered_.end());
+  surface_list_ = broad_phase_.partnered();
   const int num_surfaces = static_cast<int>(surface_list_.size());
   BeginVertexHash();
   ClassifyKeptVertices();  // (before the surfaces, which read the outcodes)
@@ -208,7 +208,7 @@ void PenetrationSolver::ClassifyVertices(int begin, int end) {
       continue;
     }
     const Positions& x = *positions_[o];
-    const Eigen::Vector3d lo = search_lo_[o], hi = search_hi_[o];
+    const Eigen::Vector3d lo = broad_phase_.search_lo(o), hi = broad_phase_.search_hi(o);
     std::uint8_t* outcode = vertex_outcode_.data() + offset;
     Eigen::Vector3i* cell = vertex_cell_.data() + offset;
     for (int v = g - offset; v < stop - offset; ++v) {
@@ -240,7 +240,7 @@ void PenetrationSolver::ClassifyKeptVertices() {
     kept.classified.clear();
     kept.hashed.clear();
     const Positions& x = *positions_[o];
-    const Eigen::Vector3d lo = search_lo_[o], hi = search_hi_[o];
+    const Eigen::Vector3d lo = broad_phase_.search_lo(o), hi = broad_phase_.search_hi(o);
     auto classify = [&](int v) {
       const Eigen::Vector3d p = x.row(v).transpose();
       outcode[v] = Outcode(p, lo, hi);
@@ -272,7 +272,7 @@ void PenetrationSolver::BuildVertexHash(int num_threads) {
   // buckets of (cell, 0), which would cost one lookup per cell and partner
   bool keyed = false, unkeyed = false;
   for (int o = 0; o < num_objects; ++o) {
-    const int count = partner_offset_[o + 1] - partner_offset_[o];
+    const int count = broad_phase_.num_partners(o);
     keyed |= count > 0 && count <= kMaxKeyedPartners;
     unkeyed |= count > kMaxKeyedPartners;
   }
@@ -495,16 +495,16 @@ void PenetrationSolver::SearchChunk(std::span<const CollisionObject> objects, in
       });
     }
   };
-  if (partner_offset_[b + 1] - partner_offset_[b] > kMaxKeyedPartners) {
+  if (broad_phase_.num_partners(b) > kMaxKeyedPartners) {
     // all vertices in B's search box
-    search(search_lo_[b], search_hi_[b], -1, 0, [&](int e) {
+    search(broad_phase_.search_lo(b), broad_phase_.search_hi(b), -1, 0, [&](int e) {
       return MayPenetrate(objects, hashed_.object[e], b) ? hashed_.object[e] : -1;
     });
     return;
   }
-  for (int i = partner_offset_[b]; i < partner_offset_[b + 1]; ++i) {
+  for (int i = broad_phase_.partner_begin(b); i < broad_phase_.partner_end(b); ++i) {
     // partner A's vertices inside B lie in the overlap of their boxes
-    const Partner& partner = partners_[i];
+    const BroadPhase::Partner& partner = broad_phase_.partner(i);
     const int a = partner.object;
     search(partner.lo, partner.hi, i, a + 1,
            [&](int e) { return hashed_.object[e] == a ? a : -1; });
@@ -566,7 +566,7 @@ void PenetrationSolver::SearchLargeTets(std::span<const CollisionObject> objects
         tet.have_coordinates = false;
         const auto vertices = object_b.mesh->tets().row(large.tet);
         for (int k = 0; k < 4; ++k) tet.corner[k] = x.row(vertices[k]).transpose();
-        const int a_only = large.partner >= 0 ? partners_[large.partner].object : -1;
+        const int a_only = large.partner >= 0 ? broad_phase_.partner(large.partner).object : -1;
         ThreadScratch& scratch = thread_scratch_[omp_get_thread_num()];
         auto visit = [&](int e) {
           const int a = hashed_.object[e];

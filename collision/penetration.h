@@ -32,15 +32,15 @@
 // the scene's size.
 
 #include <array>
-#include <bit>
 #include <cstdint>
-#include <limits>
-#include <optional>
 #include <span>
 #include <vector>
 
 #include "collision/box_tree.h"
+#include "collision/broad_phase.h"
+#include "collision/collision_object.h"
 #include "collision/geometry.h"
+#include "collision/kept_object.h"
 #include "collision/spatial_hash.h"
 #include "mesh/tet_mesh.h"
 
@@ -58,80 +58,6 @@ enum class DepthSource : std::uint8_t {
 
 const char* DepthMethodName(DepthMethod method);
 const char* DepthSourceName(DepthSource source);
-
-// The box of a set of positions and whether they are all finite, grown one
-// position at a time: the solver's own pass over an object's positions, and
-// what a caller that writes the positions anyway (the bridge placing a
-// moving body's proxy) can accumulate as it writes them (RigidFrame::bounds).
-struct PositionBounds {
-  Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
-  Eigen::Vector3d hi = Eigen::Vector3d::Constant(-std::numeric_limits<double>::infinity());
-  // the bits of p - p, or-ed: +0 (no bit set) while every coordinate is
-  // finite, a NaN's once one is infinite or NaN (summing p - p instead, a
-  // chain of adds, made the solver's hash stage slower: 5.8 against 5.0 us
-  // on the 70% cubes)
-  std::uint64_t non_finite = 0;
-
-  void Add(const Eigen::Vector3d& p) {
-    lo = lo.cwiseMin(p);
-    hi = hi.cwiseMax(p);
-    non_finite |= std::bit_cast<std::uint64_t>(p.x() - p.x()) |
-                  std::bit_cast<std::uint64_t>(p.y() - p.y()) |
-                  std::bit_cast<std::uint64_t>(p.z() - p.z());
-  }
-  bool finite() const { return non_finite == 0; }
-
-  // Add of every position of x, in order.
-  static PositionBounds Of(const Positions& x);
-};
-
-// A rigid motion: a point's world position is rotation * p + translation
-// for its position p in the body frame.
-struct RigidFrame {
-  Eigen::Matrix3d rotation = Eigen::Matrix3d::Identity();
-  Eigen::Vector3d translation = Eigen::Vector3d::Zero();
-  // Optional: the box of the object's positions, PositionBounds::Add of
-  // every one of them as given, so that the solver need not pass over them
-  // for it (a pass over a large body's positions costs a solve about 1.3 ns
-  // a vertex, more than the rest of its solve: docs/performance.md). It
-  // must be of the positions as given (results are then the same as
-  // without it); the solver checks a few of them against it and throws
-  // Error if one lies outside. Used whenever given, whether or not the
-  // rotation is one.
-  std::optional<PositionBounds> bounds;
-};
-
-// One object as the solver sees it: shared immutable topology and the current
-// positions (#V x 3, world frame, metres), which must outlive Solve().
-struct CollisionObject {
-  const TetMesh* mesh = nullptr;
-  const Positions* positions = nullptr;
-  bool rigid = false;           // rigid objects never collide with each other
-  bool self_collision = false;  // test the object's vertices against its own tets
-  // The positions are those of the previous Solve() of this solver (same
-  // object index, mesh and positions storage): a body that does not move,
-  // such as a geom of MuJoCo's world body. The solver then keeps the
-  // object's box and a tree over its chunks of tetrahedra from one solve to
-  // the next, and passes over only the chunks and faces near its partners,
-  // so that a large fixed body costs a solve about what its contacts cost.
-  // Results are the same as without the flag. (A few vertices are compared
-  // with the kept copy every solve: if they moved, the object is taken as
-  // not fixed for that solve.)
-  bool fixed = false;
-  // Optional (when not fixed), must outlive Solve(): the object moves
-  // rigidly, its positions are `frame` applied to body-frame positions that
-  // do not change from one solve to the next (same object index, mesh and
-  // positions storage), such as a proxy of a moving MuJoCo body. The solver
-  // then keeps a tree over the object's chunks in the body frame, as for a
-  // fixed object, and passes over only the chunks and faces near its
-  // partners, and over its positions once for its box unless the frame
-  // gives it (RigidFrame::bounds). Results are the
-  // same as without the frame. The rotation must be orthonormal (to
-  // rounding), else the frame is not used. (A few vertices are compared
-  // with their kept body-frame positions every solve: if they moved by
-  // more than rounding, the object is solved without its frame that solve.)
-  const RigidFrame* frame = nullptr;
-};
 
 struct PenetrationResult {
   int object = -1;      // A: the object of the colliding vertex
@@ -232,11 +158,6 @@ class PenetrationSolver {
                                           : tet < o.tet;
     }
   };
-  // Arrays read four entries at a time have this many more entries (NaN),
-  // so that a read from any entry stays inside them.
-  static constexpr int kSimdPadding = 3;
-  // Sizes values to n entries and the padding, which it sets to NaN.
-  static void ResizePadded(std::vector<double>& values, int n);
   // the vertices in the stage-1 hash, in its entry (bucket) order, by
   // coordinate so that a tetrahedron tests four candidates at once against
   // its box (padded by kSimdPadding)
@@ -282,7 +203,7 @@ class PenetrationSolver {
   };
   // stage 1: a tetrahedron whose box covers more than kMaxTetCells cells,
   // searched after the chunks (SearchLargeTets): its object and index,
-  // whose vertices it tests (partner: an index into partners_, or -1 for
+  // whose vertices it tests (partner: an index of BroadPhase::partner, or -1 for
   // every partner's), and its box within the region where those can be
   struct LargeTet {
     int object;
@@ -311,57 +232,6 @@ class PenetrationSolver {
                                       // for the next layer (the first: listed in stage 2)
   };
 
-  // What the solver keeps of a fixed object (CollisionObject::fixed) or one
-  // moving with a frame (CollisionObject::frame, "framed") between solves,
-  // and what a solve found in it: its box, a tree over its chunks' boxes (a
-  // chunk's box: that of its tets' corners), per chunk its surface faces
-  // (the faces of its tets, ascending), and a tree over its faces. A framed
-  // object's boxes are in its body frame, grown by `pad`.
-  struct KeptObject {
-    const TetMesh* mesh = nullptr;  // the object seen last (null: none)
-    const Positions* positions = nullptr;
-    bool framed = false;
-    std::vector<int> sample_vertex;       // compared every solve
-    std::vector<Eigen::Vector3d> sample;  // their positions (body frame if framed) when kept
-    bool built = false;                   // what follows is of those positions
-    Eigen::Vector3d lo, hi;               // box, before Inflate (not framed)
-    bool finite = true;                   // every position is finite
-    // framed: this solve's frame; the largest body-frame coordinate (in
-    // magnitude); the growth of the kept boxes, which covers the rounding of
-    // positions taken into the body frame
-    Eigen::Matrix3d rotation;
-    Eigen::Vector3d translation;
-    double body_scale = 0.0, pad = 0.0;
-    // a world point in the frame of the kept boxes
-    Eigen::Vector3d ToBody(const Eigen::Vector3d& p) const {
-      return framed ? Eigen::Vector3d(rotation.transpose() * (p - translation)) : p;
-    }
-    std::vector<Eigen::Vector3d> run_lo, run_hi;  // per chunk
-    BoxTree runs;                                 // over the chunks' boxes
-    std::vector<int> run_face_offset, run_faces;  // per chunk its surface faces
-    // closest features (the closest method, fallback values): a box tree
-    // over all its surface faces (item f: face f), their boxes as
-    // MakeTriangle's
-    BoxTree faces;
-    std::vector<Eigen::Vector3d> face_lo, face_hi;
-    std::vector<int> loose_vertices;  // in no tet (TetMeshOptions::drop_unreferenced off)
-    bool active = false;              // this solve: fixed or framed, and kept
-    std::vector<int> searched;        // this solve: chunks whose box meets the search box
-    // this solve: the vertices of those chunks (and loose ones) that got an
-    // outcode, with repeats, and those in the search box, ascending; the
-    // others' outcodes are kBeyondEverySide, all set when its first vertex
-    // was at outcode_offset among the objects' (-1: not set)
-    std::vector<int> classified, hashed;
-    int outcode_offset = -1;
-  };
-  // Throws Error if object o's RigidFrame::bounds leave out one of a few of
-  // its positions.
-  static void CheckGivenBounds(const CollisionObject& object, int o);
-  // Whether a fixed or framed object can use what is kept of it this solve:
-  // it can unless some of its sampled vertices moved since they were kept
-  // (then it is solved without, and kept again once it stays still, or
-  // rigid) or its frame is not a rotation; keeps it if it is not kept yet.
-  static bool KeepObject(const CollisionObject& object, KeptObject& kept);
   void Prepare(std::span<const CollisionObject> objects);
   void FindCollidingPoints(std::span<const CollisionObject> objects);
   void FindCollidingPointsAndHashSurfaces(std::span<const CollisionObject> objects, int threads);
@@ -464,25 +334,13 @@ class PenetrationSolver {
   std::vector<Positions> normals_;  // #objects: current vertex normals (those stage 2 reads)
   std::vector<std::vector<std::uint32_t>> normal_stamp_;  // #objects x #V: round of the normal
   std::uint32_t normal_round_ = 0;
-  // broad phase: current bounding boxes, and per object the box where its
-  // partners (objects whose boxes overlap it and that it may collide with,
-  // itself with self-collision) reach into it; empty (lo > hi) if none
-  std::vector<Eigen::Vector3d> object_lo_, object_hi_;  // #objects
-  std::vector<Eigen::Vector3d> search_lo_, search_hi_;  // #objects
-  std::vector<int> sweep_order_;                        // #objects, by lo on the sweep axis
-  std::vector<double> sweep_lo_[3], sweep_hi_[3];       // their boxes in that order (padded)
-  std::vector<std::array<int, 2>> pairs_;               // (object, partner), both ways
-  struct Partner {
-    Eigen::Vector3d lo, hi;  // the overlap of the two objects' boxes
-    int object;
-  };
-  std::vector<int> partner_offset_;  // #objects + 1
-  std::vector<int> partner_pair_;    // per partner entry: its index in pairs_
-  std::vector<Partner> partners_;    // per object, its partners
-  std::vector<int> chunk_offset_;    // #objects + 1: global index of stage 1's tet chunks
-  std::vector<int> partnered_;       // the objects with partners
-  std::vector<KeptObject> kept_;     // #objects
-  bool any_kept_ = false;            // an object is active in kept_ this solve
+  // broad phase: per object its current (inflated) bounding box, and its
+  // partners and search box
+  std::vector<BroadPhaseBox> boxes_;  // #objects
+  BroadPhase broad_phase_;
+  std::vector<int> chunk_offset_;  // #objects + 1: global index of stage 1's tet chunks
+  std::vector<KeptObject> kept_;   // #objects
+  bool any_kept_ = false;          // an object is active in kept_ this solve
   // with any_kept_: the chunks stage 1 searches (every chunk of an object
   // that is not kept, a kept one's searched chunks), ascending
   std::vector<int> search_chunks_;

@@ -69,6 +69,17 @@ inline void InflatedBounds(const Eigen::Vector3d (&points)[N], Eigen::Vector3d& 
   hi = box_hi;
 }
 
+// A few vertices of an object spread over its numbering (SpreadVertex): a
+// fixed or framed object's samples, compared every solve
+// (CollisionObject::fixed, ::frame), and the check of a given box
+// (CheckGivenBounds).
+constexpr int kSampledVertices = 16;
+// Vertex i of n + 1 spread evenly over a numbering of num_vertices: i = 0 is
+// the first, i = n the last.
+inline long SpreadVertex(long i, long n, long num_vertices) {
+  return (num_vertices - 1) * i / n;
+}
+
 // How many of the num_threads threads a loop of n items should use: one per
 // min_per_thread items at least. Waking and joining a team costs about as
 // much as a few thousand cheap iterations, so short loops run on one.

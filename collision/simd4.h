@@ -8,9 +8,11 @@
 #endif
 
 #include <Eigen/Core>
+#include <algorithm>
 #include <bit>
 #include <cstdint>
 #include <cstring>
+#include <limits>
 #include <vector>
 
 namespace tetcosim {
@@ -20,6 +22,16 @@ namespace tetcosim {
 // gives lanes of all ones (true) or zeros.
 using Double4 = double __attribute__((vector_size(4 * sizeof(double))));
 using Mask4 = std::int64_t __attribute__((vector_size(4 * sizeof(double))));
+
+// Arrays read four entries at a time have this many more entries (NaN),
+// so that a read from any entry stays inside them.
+constexpr int kSimdPadding = 3;
+
+// Sizes values to n entries and the padding, which it sets to NaN.
+inline void ResizePadded(std::vector<double>& values, int n) {
+  values.resize(n + kSimdPadding);
+  std::fill(values.begin() + n, values.end(), std::numeric_limits<double>::quiet_NaN());
+}
 
 // Lane i holds i: lanes e + i at or past an end are masked off with it.
 constexpr Mask4 kLanes = {0, 1, 2, 3};

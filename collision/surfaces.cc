@@ -12,6 +12,7 @@
 #include <numeric>
 
 #include "collision/penetration_internal.h"
+#include "collision/simd4.h"
 #include "mesh/parallel_for.h"
 
 namespace tetcosim {

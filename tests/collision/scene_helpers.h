@@ -2,15 +2,20 @@
 
 // Small scenes of tetrahedral objects for collision tests.
 
+#include <gtest/gtest.h>
+
 #include <Eigen/Geometry>
 #include <cmath>
 #include <memory>
 #include <numbers>
 #include <random>
+#include <string>
+#include <tuple>
 #include <vector>
 
 #include "collision/penetration.h"
 #include "mesh/generators.h"
+#include "mesh/same_bits.h"
 
 namespace tetcosim::testing {
 
@@ -91,6 +96,23 @@ inline TestScene CrowdedScene(int trial) {
     if (x(v, 0) > 0.19) x(v, 0) = -0.03;
   }
   return scene;
+}
+
+// The same results bit for bit (what: the run compared, for messages).
+inline void ExpectSameResults(const std::vector<PenetrationResult>& expected,
+                              const std::vector<PenetrationResult>& actual,
+                              const std::string& what) {
+  ASSERT_EQ(expected.size(), actual.size()) << what;
+  for (size_t i = 0; i < actual.size(); ++i) {
+    const auto& x = expected[i];
+    const auto& y = actual[i];
+    EXPECT_EQ(std::tie(x.object, x.vertex, x.penetrated, x.tet),
+              std::tie(y.object, y.vertex, y.penetrated, y.tet))
+        << what;
+    EXPECT_TRUE(SameBits({&x.depth, 1}, {&y.depth, 1})) << what;
+    EXPECT_TRUE(SameBits({x.direction.data(), 3}, {y.direction.data(), 3})) << what;
+    EXPECT_EQ(x.source, y.source) << what;
+  }
 }
 
 }  // namespace tetcosim::testing

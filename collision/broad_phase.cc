@@ -1,0 +1,109 @@
+#include "collision/broad_phase.h"
+
+#include <algorithm>
+#include <bit>
+#include <limits>
+
+#include "collision/simd4.h"
+#include "mesh/group_by_key.h"
+
+namespace tetcosim {
+
+void BroadPhase::Find(std::span<const BroadPhaseBox> boxes) {
+  const int num_objects = static_cast<int>(boxes.size());
+  // (an empty box, or one with NaN, is left out: it sorts last, and its low
+  // sides in the sweep are +inf, which meet no finite box)
+  left_out_.resize(num_objects);
+  for (int o = 0; o < num_objects; ++o) {
+    left_out_[o] = !(boxes[o].lo.array() <= boxes[o].hi.array()).all();
+  }
+  auto left_out = [&](int o) { return left_out_[o] != 0; };
+  const double inf = std::numeric_limits<double>::infinity();
+  // the sweep axis: the one along which the boxes' centres spread most
+  // (their variance), so that the fewest boxes start before a box ends
+  // along it (a pile of 9600 spheres, 20 x 80 x 6, swept along x: 360
+  // boxes tested a box, 13 overlapping it, and the broad phase was 18% of
+  // the solve's instructions; along y, 10%)
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  int num_in = 0;
+  for (int o = 0; o < num_objects; ++o) {
+    if (left_out(o)) continue;
+    mean += 0.5 * (boxes[o].lo + boxes[o].hi);
+    ++num_in;
+  }
+  mean /= std::max(1, num_in);
+  Eigen::Vector3d spread = Eigen::Vector3d::Zero();
+  for (int o = 0; o < num_objects; ++o) {
+    if (left_out(o)) continue;
+    spread += (0.5 * (boxes[o].lo + boxes[o].hi) - mean).cwiseAbs2();
+  }
+  int axis = 0;
+  spread.maxCoeff(&axis);  // (the first of equal ones)
+  pairs_.clear();
+  sweep_order_.resize(num_objects);
+  for (int o = 0; o < num_objects; ++o) sweep_order_[o] = o;
+  std::sort(sweep_order_.begin(), sweep_order_.end(), [&](int a, int b) {
+    const double a_lo = left_out(a) ? inf : boxes[a].lo[axis];
+    const double b_lo = left_out(b) ? inf : boxes[b].lo[axis];
+    return a_lo != b_lo ? a_lo < b_lo : a < b;
+  });
+  // the boxes in sweep order by coordinate: a box is tested against the
+  // boxes after it that start before it ends along the axis, four at a
+  // time (in a pile of 120 spheres, about 50 of them per box)
+  for (int k = 0; k < 3; ++k) {
+    ResizePadded(sweep_lo_[k], num_objects);
+    ResizePadded(sweep_hi_[k], num_objects);
+    for (int i = 0; i < num_objects; ++i) {
+      const int o = sweep_order_[i];
+      sweep_lo_[k][i] = left_out(o) ? inf : boxes[o].lo[k];
+      sweep_hi_[k][i] = boxes[o].hi[k];
+    }
+  }
+  const std::vector<double>& sweep_lo = sweep_lo_[axis];
+  for (int i = 0; i < num_objects; ++i) {
+    const int a = sweep_order_[i];
+    if (left_out(a)) continue;
+    if (boxes[a].self_collision) pairs_.push_back({a, a});
+    // (the boxes that start before this one ends, by bisection)
+    const int end =
+        static_cast<int>(std::upper_bound(sweep_lo.begin() + i + 1, sweep_lo.begin() + num_objects,
+                                          boxes[a].hi[axis]) -
+                         sweep_lo.begin());
+    const Box4 box(boxes[a].lo, boxes[a].hi);
+    for (int j = i + 1; j < end; j += 4) {
+      for (unsigned bits = box.Overlapping(sweep_lo_, sweep_hi_, j, end); bits != 0;
+           bits &= bits - 1) {
+        const int b = sweep_order_[j + std::countr_zero(bits)];
+        if (boxes[a].rigid && boxes[b].rigid) continue;  // the rigid engine's pair
+        pairs_.push_back({a, b});
+        pairs_.push_back({b, a});
+      }
+    }
+  }
+  // per object its partners, with the overlap of the two boxes, in the
+  // order found
+  GroupByKey(
+      num_objects,
+      [&](auto emit) {
+        for (int i = 0; i < static_cast<int>(pairs_.size()); ++i) emit(pairs_[i][0], i);
+      },
+      partner_offset_, partner_pair_);
+  partnered_.clear();
+  for (int o = 0; o < num_objects; ++o) {
+    if (partner_offset_[o + 1] > partner_offset_[o]) partnered_.push_back(o);
+  }
+  partners_.resize(pairs_.size());
+  search_lo_.assign(num_objects, Eigen::Vector3d::Constant(inf));
+  search_hi_.assign(num_objects, Eigen::Vector3d::Constant(-inf));
+  for (size_t k = 0; k < partners_.size(); ++k) {
+    const auto [b, a] = pairs_[partner_pair_[k]];
+    Partner& partner = partners_[k];
+    partner.object = a;
+    partner.lo = boxes[a].lo.cwiseMax(boxes[b].lo);
+    partner.hi = boxes[a].hi.cwiseMin(boxes[b].hi);
+    search_lo_[b] = search_lo_[b].cwiseMin(partner.lo);
+    search_hi_[b] = search_hi_[b].cwiseMax(partner.hi);
+  }
+}
+
+}  // namespace tetcosim
