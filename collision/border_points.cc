@@ -22,7 +22,7 @@ namespace tetcosim {
 namespace {
 
 // SegmentTriangle (geometry.h) for four triangles by coordinate (lane j of
-// corner[k], edge0[k], edge1[k] and edge_lengths: TriangleGeometry's
+// corner[k], edge0[k], edge1[k] and edge_lengths: Surfaces::Geometry's
 // corner[0], edge[0], edge[1] and edge_lengths of triangle j), the same
 // arithmetic lane by lane. Bit j set: the segment from q to q + dir crosses
 // triangle j, at t[j], (u[j], v[j]).
@@ -78,7 +78,9 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
       std::fill(scratch.seen.begin(), scratch.seen.end(), 0);
       scratch.query = 0;
     }
-    if (scratch.seen.size() < triangles_.size()) scratch.seen.resize(triangles_.size(), 0);
+    if (static_cast<int>(scratch.seen.size()) < surfaces_.num_entries()) {
+      scratch.seen.resize(surfaces_.num_entries(), 0);
+    }
     scratch.edges = 0;
     scratch.triangle_tests = 0;
     scratch.candidates.clear();
@@ -105,11 +107,13 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
     const size_t num_listed = candidates.size();
     // the face of triangle entry `index` of B: a small object's entries are
     // its faces in order, and their entries are not read (the four-wide
-    // tests read small_): in a pile of 2400 spheres, loading the entry for
+    // tests read its groups): in a pile of 2400 spheres, loading the entry for
     // its face was the most frequent cache miss of stage 2
-    const bool small = object_small_[b];
-    const int entry_begin = object_entry_begin_[b];
-    auto face_of = [&](int index) { return small ? index - entry_begin : triangles_[index].face; };
+    const bool small = surfaces_.small(b);
+    const int entry_begin = surfaces_.entry_begin(b);
+    auto face_of = [&](int index) {
+      return small ? index - entry_begin : surfaces_.entry(index).face;
+    };
     for (int n = mesh_a.adjacency_offsets()[v]; n < mesh_a.adjacency_offsets()[v + 1]; ++n) {
       const int q_local = mesh_a.adjacency()[n];
       const int q_global = vertex_offset_[a] + q_local;
@@ -147,7 +151,7 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
       };
       auto test_triangle = [&](int index) {
         ++scratch.triangle_tests;
-        const TriangleGeometry& triangle = triangle_geometry_[index];
+        const Surfaces::Geometry& triangle = surfaces_.geometry(index);
         double t, u, w;
         if (SegmentTriangle(q, dir, dir_length, triangle.corner[0], triangle.edge[0],
                             triangle.edge[1], triangle.edge_lengths, t, u, w)) {
@@ -157,11 +161,11 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
       if (small) {
         // a small object's triangles are all in its list, none in the
         // grid: tested four at a time, box and crossing
-        const int num_faces = object_entry_end_[b] - entry_begin;
-        const SmallTriangleGroup* groups = &small_[object_small_begin_[b]];
+        const int num_faces = surfaces_.entry_end(b) - entry_begin;
+        const Surfaces::SmallGroup* groups = surfaces_.groups(b);
         const Box4 segment_box(segment_lo, segment_hi);
         for (int g = 0; g < (num_faces + 3) / 4; ++g) {
-          const SmallTriangleGroup& group = groups[g];
+          const Surfaces::SmallGroup& group = groups[g];
           const unsigned overlapping = segment_box.Overlapping(group.lo, group.hi);
           if (overlapping == 0) continue;
           scratch.triangle_tests += std::popcount(overlapping);
@@ -175,13 +179,13 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
           }
         }
       } else {
-        const ObjectTriangles& hashed = object_triangles_[b];
+        const Surfaces::Table& hashed = surfaces_.table(b);
         if (hashed.large_tree.num_items() > 0) [[unlikely]] {
           hashed.large_tree.Overlapping(segment_lo, segment_hi,
                                         [&](int item) { test_triangle(hashed.large[item]); });
         } else {
           for (int index : hashed.large) {
-            const TriangleEntry& entry = triangles_[index];
+            const Surfaces::Entry& entry = surfaces_.entry(index);
             if (BoxesOverlap(entry.lo, entry.hi, segment_lo, segment_hi)) test_triangle(index);
           }
         }
@@ -227,17 +231,17 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
       Eigen::Vector3d normal;
       auto face_normal = [&]() -> Eigen::Vector3d {
         if (small) {
-          const SmallTriangleGroup& group = small_[object_small_begin_[b] + f / 4];
+          const Surfaces::SmallGroup& group = surfaces_.groups(b)[f / 4];
           const int lane = f % 4;
           return Lane(group.edge0, lane).cross(Lane(group.edge1, lane));
         }
-        const TriangleGeometry& triangle = triangle_geometry_[best_entry];
+        const Surfaces::Geometry& triangle = surfaces_.geometry(best_entry);
         return triangle.edge[0].cross(triangle.edge[1]);
       };
-      if (!SmoothNormal(normals_[b].row(surface_b(f, 0)).transpose(),
-                        normals_[b].row(surface_b(f, 1)).transpose(),
-                        normals_[b].row(surface_b(f, 2)).transpose(), best_u, best_v, face_normal,
-                        normal)) {
+      if (!SmoothNormal(surfaces_.normals(b).row(surface_b(f, 0)).transpose(),
+                        surfaces_.normals(b).row(surface_b(f, 1)).transpose(),
+                        surfaces_.normals(b).row(surface_b(f, 2)).transpose(), best_u, best_v,
+                        face_normal, normal)) {
         continue;
       }
       // stage 3: w_i = 1 / |x_i - p|^2 (method.md)
@@ -282,7 +286,7 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
         threads,
         [&](auto emit) {
           for (int h = 0; h < num_hits; ++h) {
-            emit(object_builder_[hits_[h].penetrated] % threads, h);
+            emit(surfaces_.builder(hits_[h].penetrated) % threads, h);
           }
         },
         hit_group_offset_, hit_order_);

@@ -63,17 +63,17 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
                                           x.row(surface(f, 2)).transpose()};
   };
   auto test = [&](int index) {  // a triangle entry
-    const TriangleEntry& entry = triangles_[index];
+    const Surfaces::Entry& entry = surfaces_.entry(index);
     test_face(entry.face, entry.lo, entry.hi, p, [&] {
-      const TriangleGeometry& triangle = triangle_geometry_[index];
+      const Surfaces::Geometry& triangle = surfaces_.geometry(index);
       return std::array<Eigen::Vector3d, 3>{triangle.corner[0], triangle.corner[1],
                                             triangle.corner[2]};
     });
   };
-  if (object_small_[b]) {  // (its boxes in small_, no entries)
-    const SmallTriangleGroup* groups = &small_[object_small_begin_[b]];
-    for (int f = 0; f < object_entry_end_[b] - object_entry_begin_[b]; ++f) {
-      const SmallTriangleGroup& group = groups[f / 4];
+  if (surfaces_.small(b)) {  // (its boxes in its groups, no entries)
+    const Surfaces::SmallGroup* groups = surfaces_.groups(b);
+    for (int f = 0; f < surfaces_.entry_end(b) - surfaces_.entry_begin(b); ++f) {
+      const Surfaces::SmallGroup& group = groups[f / 4];
       const int lane = f % 4;
       test_face(f, Lane(group.lo, lane), Lane(group.hi, lane), p, [&] { return face_corners(f); });
     }
@@ -91,11 +91,11 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
       test_face(f, kept.face_lo[f], kept.face_hi[f], q, [&] { return face_corners(f); });
     });
   } else if (closest_queries_[b] >= kMinTreeQueries) {
-    const ObjectTriangles& hashed = object_triangles_[b];
+    const Surfaces::Table& hashed = surfaces_.table(b);
     hashed.tree.Nearest(p, best, [&](int item) { test(hashed.tree_entry[item]); });
   } else {
-    for (int entry = object_entry_begin_[b]; entry < object_entry_end_[b]; ++entry) test(entry);
-    for (int entry = object_rest_begin_[b]; entry < object_rest_end_[b]; ++entry) test(entry);
+    for (int entry = surfaces_.entry_begin(b); entry < surfaces_.entry_end(b); ++entry) test(entry);
+    for (int entry = surfaces_.rest_begin(b); entry < surfaces_.rest_end(b); ++entry) test(entry);
   }
   return std::isfinite(best);
 }
@@ -118,17 +118,17 @@ void PenetrationSolver::ComputeClosest(std::span<const CollisionObject> objects,
     if (layer_[h] >= 0) continue;
     frontier_.push_back(h);
     const int b = hits_[h].penetrated;
-    AddRemainingTriangles(objects, b);
+    surfaces_.AddRemaining(objects, b, kept_[b], vertex_outcode_.data() + vertex_offset_[b]);
     // a box tree for the objects with enough queries to pay for it (a
     // coarse box's one corner in a fine ball is cheaper searched whole)
-    if (++closest_queries_[b] == kMinTreeQueries && !object_small_[b] && !kept_[b].active) {
+    if (++closest_queries_[b] == kMinTreeQueries && !surfaces_.small(b) && !kept_[b].active) {
       tree_objects_.push_back(b);
     }
   }
   const int num_trees = static_cast<int>(tree_objects_.size());
   ParallelFor(
       ThreadsFor(options_.num_threads, num_trees, 1), 0, num_trees,
-      [&](int i) { BuildTree(tree_objects_[i]); }, Schedule::kDynamic, 1);
+      [&](int i) { surfaces_.BuildTree(tree_objects_[i]); }, Schedule::kDynamic, 1);
   const int num_pending = static_cast<int>(frontier_.size());
   ParallelFor(
       ThreadsFor(options_.num_threads, num_pending, 16), 0, num_pending,

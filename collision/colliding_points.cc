@@ -154,7 +154,8 @@ void PenetrationSolver::FindCollidingPointsAndHashSurfaces(std::span<const Colli
   const int num_surfaces = static_cast<int>(surface_list_.size());
   BeginVertexHash();
   ClassifyKeptVertices();  // (before the surfaces, which read the outcodes)
-  PlaceSurfaces(objects, /*full=*/false);
+  surfaces_.Place(objects, surface_list_, kept_, /*full=*/false, /*hash_and_normals=*/true,
+                  cell_size_);
   const int num_chunks = BeginSearch(objects, threads);
   std::atomic<bool> hash_built = false;
   std::atomic<int> surfaces_left = num_surfaces;
@@ -174,7 +175,7 @@ void PenetrationSolver::FindCollidingPointsAndHashSurfaces(std::span<const Colli
     }
 #pragma omp for schedule(dynamic, 1) nowait
     for (int i = 0; i < num_surfaces; ++i) {
-      HashSurface(objects, surface_list_[i]);
+      MakeSurface(objects, surface_list_[i]);
       if (surfaces_left.fetch_sub(1, std::memory_order_acq_rel) == 1) surfaces_end = Clock::now();
     }
     while (!hash_built.load(std::memory_order_acquire)) std::this_thread::yield();

@@ -90,7 +90,6 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
   vertex_offset_.resize(num_objects + 1);
   vertex_offset_[0] = 0;
   positions_.resize(num_objects);
-  normals_.resize(num_objects);
   double edge_sum = 0.0;
   long edge_count = 0;
   for (int o = 0; o < num_objects; ++o) {

@@ -42,6 +42,7 @@
 #include "collision/geometry.h"
 #include "collision/kept_object.h"
 #include "collision/spatial_hash.h"
+#include "collision/surfaces.h"
 #include "mesh/tet_mesh.h"
 
 namespace tetcosim {
@@ -166,32 +167,6 @@ class PenetrationSolver {
     std::vector<int> vertex;      // global vertex index
     std::vector<int> object;      // its object
   };
-  // a surface triangle in the triangle hash (or in its object's list): what
-  // a query tests first, and its geometry (kept apart, read only for the few
-  // triangles whose box a query overlaps)
-  struct TriangleEntry {
-    Eigen::Vector3d lo, hi;  // bounding box
-    int object;
-    int face;  // index into the object's surface
-  };
-  struct TriangleGeometry {
-    Eigen::Vector3d corner[3];         // current positions
-    Eigen::Vector3d edge[2];           // corner[1] - corner[0], corner[2] - corner[0]
-    double edge_lengths;               // |edge[0]| |edge[1]|
-    Eigen::Vector3i cell_lo, cell_hi;  // the cells the box covers
-  };
-  // small objects' triangles, four to a group (stage 2 tests four at a
-  // time): the four faces' boxes and geometry by coordinate, 512 bytes in a
-  // row, so that a small body's faces are read front to back (in a pile of
-  // 1200 spheres, arrays by coordinate spread each body's over 16 streams
-  // that did not stay in the core's cache). An object's faces start a
-  // group; lanes past its last face have NaN boxes, which overlap nothing.
-  struct alignas(64) SmallTriangleGroup {
-    double lo[3][4], hi[3][4];        // the box
-    double corner[3][4];              // TriangleGeometry's corner[0]
-    double edge0[3][4], edge1[3][4];  // and edges
-    double edge_lengths[4];
-  };
   // a tetrahedron of object B searched in stage 1: its corners and box, and
   // its barycentric coordinates once a vertex in its box needs them
   struct SearchedTet {
@@ -257,40 +232,12 @@ class PenetrationSolver {
   void SearchLargeTets(std::span<const CollisionObject> objects);
   void BuildCoarseVertexHash(int num_threads);
   void MergeHits();
+  // the surfaces of the objects that may be penetrated (surface_list_;
+  // with full, every face of those not kept, for the closest method), and
+  // their vertex normals
   void HashSurfaces(std::span<const CollisionObject> objects, bool full);
-  // Sets up the per-object arrays for the objects in surface_list_ and
-  // gives each a range of entries; returns the number of entries.
-  int PlaceSurfaces(std::span<const CollisionObject> objects, bool full);
-  void HashSurface(std::span<const CollisionObject> objects, int object);
-  // adds entries for the triangles of object b that HashSurfaces left out
-  // (for closest features, which may lie outside the region where objects
-  // overlap), once per solve
-  void AddRemainingTriangles(std::span<const CollisionObject> objects, int b);
-  // object b's box tree over all its entries (closest features)
-  void BuildTree(int b);
-  // which of an object's surface triangles: all, those in its search box
-  // (where intersection edges can cross them), the others
-  enum class TriangleRegion { kAll, kInside, kOutside };
-  // Whether surface triangle f of an object lies in the region: in or out
-  // of the object's search box, or anywhere.
-  bool TriangleInRegion(std::span<const CollisionObject> objects, int object, int f,
-                        TriangleRegion region) const;
-  // The entry and geometry of surface triangle f of an object at its
-  // current position.
-  void MakeTriangle(std::span<const CollisionObject> objects, int object, int f,
-                    TriangleEntry& entry, TriangleGeometry& geometry) const;
-  // Surface triangle f of a small object at its current position (x), as
-  // MakeTriangle computes it, into lane `lane` of a group of small_ (a small
-  // object's triangles have no entries: stage 2 and closest features read
-  // small_).
-  void MakeSmallTriangle(const Positions& x, const Triangles& surface, int f,
-                         SmallTriangleGroup& group, int lane);
-  // Entry `index` into its object's triangle hash, or the object's list of
-  // triangles too large to hash.
-  void InsertTriangle(int index);
-  // Sorts an object's triangle hash by bucket (after inserts) and lays out
-  // its boxes in that order.
-  void BuildTriangleHash(int object);
+  // Surfaces::Make of object o on the calling thread
+  void MakeSurface(std::span<const CollisionObject> objects, int o);
   // stages 2 and 3: intersection edges, their crossings, border points
   void ComputeBorderPoints(std::span<const CollisionObject> objects);
   void Propagate(std::span<const CollisionObject> objects);
@@ -331,9 +278,6 @@ class PenetrationSolver {
   std::vector<int> vertex_object_;     // #global vertices
   std::vector<int> object_of_offset_;  // the vertex_offset_ that vertex_object_ was filled for
   std::vector<const Positions*> positions_;
-  std::vector<Positions> normals_;  // #objects: current vertex normals (those stage 2 reads)
-  std::vector<std::vector<std::uint32_t>> normal_stamp_;  // #objects x #V: round of the normal
-  std::uint32_t normal_round_ = 0;
   // broad phase: per object its current (inflated) bounding box, and its
   // partners and search box
   std::vector<BroadPhaseBox> boxes_;  // #objects
@@ -371,55 +315,12 @@ class PenetrationSolver {
   std::vector<std::array<int, 2>> hit_range_;  // #global vertices: its hits [begin, end)
   std::vector<int> hit_place_;                 // MergeHits' counting sort: #global vertices + 1
 
-  // the entries, by object: each object's range is the size of its
-  // surface, its entries in play at the start; those added for closest
-  // features (AddRemainingTriangles) come after every object's range. A
-  // small object's range is only numbered: entry begin + f is its face f,
-  // kept in small_ alone (its entry and geometry, 208 bytes a triangle,
-  // were written every solve and read almost never)
-  std::vector<TriangleEntry> triangles_;
-  std::vector<TriangleGeometry> triangle_geometry_;  // per entry
-  // small objects' triangles, by group (SmallTriangleGroup); an object's
-  // faces start a group
-  std::vector<SmallTriangleGroup> small_;
-  std::vector<int> object_small_begin_;  // #objects: its first group in small_
-  // per penetrated object that is not small, for stage 2 and closest
-  // features: its triangle entries in a hash of its own, which the thread
-  // that makes the object's entries builds (a shared table would be filled
-  // by one thread: on two cubes that was a tenth of the solve, serial); the
-  // entries' boxes in the hash's bucket order (hash entry e: triangle entry
-  // hash.items()[e]), by coordinate and padded by kSimdPadding NaN, so that a query
-  // tests a bucket's boxes four at a time; the entries too large to hash.
-  // On cache lines of their own, like ThreadScratch: threads fill
-  // neighbouring objects' tables at once.
-  struct BucketBoxes {
-    std::vector<double> lo[3], hi[3];
-  };
-  struct alignas(64) ObjectTriangles {
-    SpatialHash hash;
-    BucketBoxes boxes;
-    std::vector<int> large;
-    // stage 2: a box tree over the large entries when they are many (item
-    // i: entry large[i]), else empty
-    BoxTree large_tree;
-    std::vector<Eigen::Vector3d> large_lo, large_hi;
-    // closest features: a box tree over all the object's entries (item i:
-    // entry tree_entry[i], box [tree_lo[i], tree_hi[i]])
-    BoxTree tree;
-    std::vector<Eigen::Vector3d> tree_lo, tree_hi;
-    std::vector<int> tree_entry;
-  };
-  std::vector<ObjectTriangles> object_triangles_;  // #objects
-  std::vector<int> object_builder_;                // #objects: the thread that made its entries
-  std::vector<char> object_penetrated_;
-  // the objects whose surfaces are made: the penetrated ones, or every one
-  // with a partner when stage 1 and the surfaces share a region
+  // the surfaces: those of the objects in surface_list_, the penetrated
+  // ones, or every one with a partner when stage 1 and the surfaces share a
+  // region
+  Surfaces surfaces_;
+  std::vector<char> object_penetrated_;  // #objects
   std::vector<int> surface_list_;
-  std::vector<char> object_fully_hashed_;
-  std::vector<char> object_small_;  // #objects: surface tested directly, not hashed
-  std::vector<int> object_entry_begin_, object_entry_end_;  // #objects: its triangle entries
-  std::vector<int> object_rest_begin_, object_rest_end_;    // #objects: those added for closest
-                                                            // features (AddRemainingTriangles)
   std::vector<int> tree_objects_;     // the objects whose box trees a solve builds
   std::vector<int> closest_queries_;  // #objects: closest-feature queries into it (a box tree
                                       // from kMinTreeQueries, small objects aside)
