@@ -60,7 +60,7 @@ unsigned SegmentTriangles4(const Eigen::Vector3d& q, const Eigen::Vector3d& dir,
 // a point's crossings are used as soon as they are found, never stored.
 void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> objects) {
   Clock::time_point start = Clock::now();
-  const int num_hits = static_cast<int>(hits_.size());
+  const int num_hits = static_cast<int>(colliding_.hits().size());
   const int num_threads = std::max(1, options_.num_threads);
   depth_.resize(num_hits);
   direction_.resize(num_hits);
@@ -87,10 +87,10 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
   }
   auto resolve = [&](int h) {  // stages 2 and 3 for hit h
     ThreadScratch& scratch = thread_scratch_[omp_get_thread_num()];
-    const Hit& hit = hits_[h];
-    const int a = vertex_object_[hit.vertex];
+    const Hit& hit = colliding_.hits()[h];
+    const int a = vertices_.object[hit.vertex];
     const int b = hit.penetrated;
-    const int v = hit.vertex - vertex_offset_[a];
+    const int v = hit.vertex - vertices_.offset[a];
     const TetMesh& mesh_a = *objects[a].mesh;
     const Triangles& surface_b = objects[b].mesh->surface();
     const Eigen::Vector3d p = Position(hit.vertex);
@@ -116,7 +116,7 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
     };
     for (int n = mesh_a.adjacency_offsets()[v]; n < mesh_a.adjacency_offsets()[v + 1]; ++n) {
       const int q_local = mesh_a.adjacency()[n];
-      const int q_global = vertex_offset_[a] + q_local;
+      const int q_global = vertices_.offset[a] + q_local;
       const int q_hit = FindHit(q_global, b);
       if (q_hit >= 0) {  // q is inside B too: not an intersection edge
         candidates.push_back(q_hit);
@@ -286,7 +286,7 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
         threads,
         [&](auto emit) {
           for (int h = 0; h < num_hits; ++h) {
-            emit(surfaces_.builder(hits_[h].penetrated) % threads, h);
+            emit(surfaces_.builder(colliding_.hits()[h].penetrated) % threads, h);
           }
         },
         hit_group_offset_, hit_order_);

@@ -103,7 +103,7 @@ bool PenetrationSolver::ClosestSurfacePoint(std::span<const CollisionObject> obj
 // closest features: for every point without a value (fallback) or all points
 void PenetrationSolver::ComputeClosest(std::span<const CollisionObject> objects, bool all) {
   Clock::time_point start = Clock::now();
-  const int num_hits = static_cast<int>(hits_.size());
+  const int num_hits = static_cast<int>(colliding_.hits().size());
   if (all) {
     depth_.resize(num_hits);
     direction_.resize(num_hits);
@@ -117,8 +117,8 @@ void PenetrationSolver::ComputeClosest(std::span<const CollisionObject> objects,
   for (int h = 0; h < num_hits; ++h) {
     if (layer_[h] >= 0) continue;
     frontier_.push_back(h);
-    const int b = hits_[h].penetrated;
-    surfaces_.AddRemaining(objects, b, kept_[b], vertex_outcode_.data() + vertex_offset_[b]);
+    const int b = colliding_.hits()[h].penetrated;
+    surfaces_.AddRemaining(objects, b, kept_[b], colliding_.outcodes(b));
     // a box tree for the objects with enough queries to pay for it (a
     // coarse box's one corner in a fine ball is cheaper searched whole)
     if (++closest_queries_[b] == kMinTreeQueries && !surfaces_.small(b) && !kept_[b].active) {
@@ -134,12 +134,12 @@ void PenetrationSolver::ComputeClosest(std::span<const CollisionObject> objects,
       ThreadsFor(options_.num_threads, num_pending, 16), 0, num_pending,
       [&](int i) {
         const int h = frontier_[i];
-        const int g = hits_[h].vertex;
-        const int a = vertex_object_[g];
-        const int b = hits_[h].penetrated;
+        const int g = colliding_.hits()[h].vertex;
+        const int a = vertices_.object[g];
+        const int b = colliding_.hits()[h].penetrated;
         const Eigen::Vector3d p = Position(g);
         Eigen::Vector3d closest;
-        int exclude = a == b ? g - vertex_offset_[a] : -1;
+        int exclude = a == b ? g - vertices_.offset[a] : -1;
         if (!ClosestSurfacePoint(objects, b, p, exclude, closest)) return;
         Eigen::Vector3d to_surface = closest - p;
         double distance = to_surface.norm();
@@ -149,7 +149,7 @@ void PenetrationSolver::ComputeClosest(std::span<const CollisionObject> objects,
         } else {
           // on the surface: the way out is B's outward normal there; take the
           // containing tet's centroid as the inside
-          const auto tet = objects[b].mesh->tets().row(hits_[h].tet);
+          const auto tet = objects[b].mesh->tets().row(colliding_.hits()[h].tet);
           Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
           for (int c = 0; c < 4; ++c) {
             centroid += objects[b].positions->row(tet[c]).transpose() / 4.0;

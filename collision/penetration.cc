@@ -63,13 +63,14 @@ const std::vector<PenetrationResult>& PenetrationSolver::Solve(
   // boxes overlap without penetration (120 spheres on two threads: 13%
   // slower, from surfaces made in vain). Not for closest features either,
   // which hash whole surfaces.
-  const int threads = ThreadsFor(options_.num_threads, chunk_offset_.back(), kMinChunksPerThread);
+  const int threads =
+      ThreadsFor(options_.num_threads, colliding_.num_chunks(), kMinChunksPerThread);
   if (threads > 1 &&
       static_cast<int>(broad_phase_.partnered().size()) <= kMaxSurfacesAheadPerThread * threads &&
       options_.method == DepthMethod::kConsistent) {
     FindCollidingPointsAndHashSurfaces(objects, threads);
   } else {
-    FindCollidingPoints(objects);
+    colliding_.Find(options_.num_threads, timings_.hash, timings_.inside);
     HashSurfaces(objects, /*full=*/options_.method == DepthMethod::kClosest);
   }
   if (options_.method == DepthMethod::kConsistent) {
@@ -87,9 +88,10 @@ const std::vector<PenetrationResult>& PenetrationSolver::Solve(
 // global numbering of vertices, current normals, cell size
 void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
   const int num_objects = static_cast<int>(objects.size());
-  vertex_offset_.resize(num_objects + 1);
-  vertex_offset_[0] = 0;
-  positions_.resize(num_objects);
+  std::vector<int>& vertex_offset = vertices_.offset;
+  vertex_offset.resize(num_objects + 1);
+  vertex_offset[0] = 0;
+  vertices_.positions.resize(num_objects);
   double edge_sum = 0.0;
   long edge_count = 0;
   for (int o = 0; o < num_objects; ++o) {
@@ -104,31 +106,23 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
                              std::to_string(object.mesh->num_vertices()) + " vertices") +
                   "; give every object its mesh and one position per vertex");
     }
-    vertex_offset_[o + 1] = vertex_offset_[o] + object.mesh->num_vertices();
-    positions_[o] = object.positions;
+    vertex_offset[o + 1] = vertex_offset[o] + object.mesh->num_vertices();
+    vertices_.positions[o] = object.positions;
     edge_sum +=
         object.mesh->average_edge_length() * static_cast<double>(object.mesh->edges().rows());
     edge_count += object.mesh->edges().rows();
   }
-  const int num_vertices = vertex_offset_[num_objects];
-  // stage 1's chunks of tets, object after object: the runs of each
-  // object's spatial order (TetMesh::num_spatial_runs)
-  chunk_offset_.resize(num_objects + 1);
-  chunk_offset_[0] = 0;
-  for (int o = 0; o < num_objects; ++o) {
-    chunk_offset_[o + 1] = chunk_offset_[o] + objects[o].mesh->num_spatial_runs();
-  }
-  if (vertex_offset_ != object_of_offset_) {  // (the same objects: already filled)
-    vertex_object_.resize(num_vertices);
+  const int num_vertices = vertex_offset[num_objects];
+  if (vertex_offset != vertices_.object_filled_for) {  // (the same objects: already filled)
+    vertices_.object.resize(num_vertices);
     for (int o = 0; o < num_objects; ++o) {
-      std::fill(vertex_object_.begin() + vertex_offset_[o],
-                vertex_object_.begin() + vertex_offset_[o + 1], o);
+      std::fill(vertices_.object.begin() + vertex_offset[o],
+                vertices_.object.begin() + vertex_offset[o + 1], o);
     }
-    object_of_offset_ = vertex_offset_;
+    vertices_.object_filled_for = vertex_offset;
   }
   length_scale_ = edge_count > 0 ? edge_sum / static_cast<double>(edge_count) : 1.0;
   cell_size_ = options_.cell_size > 0.0 ? options_.cell_size : length_scale_;
-  inverse_cell_size_ = 1.0 / cell_size_;  // (as SpatialHash::Reset computes it)
   // broad phase: bounding boxes, and per object B its partners (the objects
   // whose boxes overlap B's and that may collide with it, B itself with
   // self-collision) and the region where they can reach into B
@@ -172,49 +166,21 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
     boxes_[o] = {lo, hi, objects[o].rigid, objects[o].self_collision};
   }
   broad_phase_.Find(boxes_);
-  if (!any_kept_) return;
-  // a kept object's chunks that stage 1 searches: those whose box meets
-  // its search box, found in its tree. (A fixed object's: exactly those
-  // that have a vertex in the search box, as a chunk's vertices all lie
-  // beyond one side of the search box just when the chunk's box does not
-  // meet it; a framed object's: a few more, its search box taken into the
-  // body frame and grown.)
-  search_chunks_.clear();
-  for (int o = 0; o < num_objects; ++o) {
-    KeptObject& kept = kept_[o];
-    if (!kept.active) {
-      for (int c = chunk_offset_[o]; c < chunk_offset_[o + 1]; ++c) search_chunks_.push_back(c);
-      continue;
-    }
-    kept.searched.clear();
-    Eigen::Vector3d lo = broad_phase_.search_lo(o), hi = broad_phase_.search_hi(o);
-    if (kept.framed && (lo.array() <= hi.array()).all()) {
-      // the search box in the body frame: the box around it there, grown
-      // as the kept boxes are
-      const Eigen::Vector3d centre = kept.ToBody(0.5 * (lo + hi));
-      const Eigen::Vector3d half = kept.rotation.transpose().cwiseAbs() * (0.5 * (hi - lo)) +
-                                   Eigen::Vector3d::Constant(kept.pad);
-      lo = centre - half;
-      hi = centre + half;
-    }
-    kept.runs.Overlapping(lo, hi, [&](int run) { kept.searched.push_back(run); });
-    std::sort(kept.searched.begin(), kept.searched.end());
-    for (int run : kept.searched) search_chunks_.push_back(chunk_offset_[o] + run);
-  }
+  colliding_.Begin(objects, vertices_, kept_, any_kept_, broad_phase_, cell_size_);
 }
 
 void PenetrationSolver::CollectResults(std::span<const CollisionObject> /*objects*/) {
   results_.clear();
   double depth_sum = 0.0;
-  for (size_t h = 0; h < hits_.size(); ++h) {
+  for (size_t h = 0; h < colliding_.hits().size(); ++h) {
     if (layer_[h] < 0) {
       ++stats_.unresolved;
       continue;
     }
-    const Hit& hit = hits_[h];
+    const Hit& hit = colliding_.hits()[h];
     PenetrationResult result;
-    result.object = vertex_object_[hit.vertex];
-    result.vertex = hit.vertex - vertex_offset_[result.object];
+    result.object = vertices_.object[hit.vertex];
+    result.vertex = hit.vertex - vertices_.offset[result.object];
     result.penetrated = hit.penetrated;
     result.tet = hit.tet;
     result.barycentric = hit.barycentric;
@@ -240,6 +206,7 @@ void PenetrationSolver::CollectResults(std::span<const CollisionObject> /*object
     }
   }
   stats_.colliding = static_cast<int>(results_.size());
+  stats_.tet_tests = colliding_.tet_tests();
   stats_.mean_depth = results_.empty() ? 0.0 : depth_sum / static_cast<double>(results_.size());
 }
 

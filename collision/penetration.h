@@ -31,17 +31,14 @@
 // thread count. No heap allocation per step once the buffers have grown to
 // the scene's size.
 
-#include <array>
 #include <cstdint>
 #include <span>
 #include <vector>
 
-#include "collision/box_tree.h"
 #include "collision/broad_phase.h"
+#include "collision/colliding_points.h"
 #include "collision/collision_object.h"
-#include "collision/geometry.h"
 #include "collision/kept_object.h"
-#include "collision/spatial_hash.h"
 #include "collision/surfaces.h"
 #include "mesh/tet_mesh.h"
 
@@ -147,91 +144,26 @@ class PenetrationSolver {
   double length_scale() const { return length_scale_; }
 
  private:
-  // a colliding point: global vertex inside object `penetrated`
-  struct Hit {
-    int vertex;      // global vertex index
-    int penetrated;  // object B
-    int tet;         // B's tet (local index)
-    Eigen::Vector4d barycentric;
-    bool operator<(const Hit& o) const {
-      return vertex != o.vertex           ? vertex < o.vertex
-             : penetrated != o.penetrated ? penetrated < o.penetrated
-                                          : tet < o.tet;
-    }
-  };
-  // the vertices in the stage-1 hash, in its entry (bucket) order, by
-  // coordinate so that a tetrahedron tests four candidates at once against
-  // its box (padded by kSimdPadding)
-  struct HashedVertices {
-    std::vector<double> x, y, z;  // position
-    std::vector<int> vertex;      // global vertex index
-    std::vector<int> object;      // its object
-  };
-  // a tetrahedron of object B searched in stage 1: its corners and box, and
-  // its barycentric coordinates once a vertex in its box needs them
-  struct SearchedTet {
-    int t;
-    Eigen::Vector3d corner[4];
-    Eigen::Vector3d lo, hi;
-    TetCoordinates coordinates;
-    bool have_coordinates;
-  };
-  // stage 1: a tetrahedron whose box covers more than kMaxTetCells cells,
-  // searched after the chunks (SearchLargeTets): its object and index,
-  // whose vertices it tests (partner: an index of BroadPhase::partner, or -1 for
-  // every partner's), and its box within the region where those can be
-  struct LargeTet {
-    int object;
-    int tet;
-    int partner;
-    Eigen::Vector3d lo, hi;
-  };
+  using Hit = CollidingPoints::Hit;
   // What one thread of a parallel stage writes, on cache lines of its own:
   // in a plain array, neighbouring threads' vector headers share a line,
   // and every push_back (which moves the end pointer) would take that line
   // away from the other core (measured: stage 1 on two threads did 24%
   // more work in all than on one).
   struct alignas(64) ThreadScratch {
-    std::vector<Hit> hits;             // stage 1: what the thread found
-    HashedVertices gathered;           // stage 1: a tet chunk's candidates (vertex:
-                                       // the entry in hashed_)
-    std::vector<LargeTet> large_tets;  // stage 1: met in the chunks, searched after
-    std::vector<int> faces;            // surfaces: an object's faces in play
-    std::vector<std::uint32_t> seen;   // stage 2: per triangle entry, the query
-                                       // in which it was last tested
+    std::vector<int> faces;           // surfaces: an object's faces in play
+    std::vector<std::uint32_t> seen;  // stage 2: per triangle entry, the query
+                                      // in which it was last tested
     std::uint32_t query = 0;
     int edges = 0;                    // stage 2: intersection edges met
-    std::int64_t tet_tests = 0;       // stage 1: PenetrationStats::tet_tests
     std::int64_t triangle_tests = 0;  // stage 2: PenetrationStats::triangle_tests
     std::vector<int> candidates;      // stage 4: points next to the layer's points,
                                       // for the next layer (the first: listed in stage 2)
   };
 
   void Prepare(std::span<const CollisionObject> objects);
-  void FindCollidingPoints(std::span<const CollisionObject> objects);
+  // stage 1 overlapped with the surfaces of every object with a partner
   void FindCollidingPointsAndHashSurfaces(std::span<const CollisionObject> objects, int threads);
-  // stage 1's parts: the vertex hash (begin, classify every vertex, build),
-  // the search (begin: returns the number of chunks, 0 if every object is
-  // rigid; a chunk at a time) and
-  // the merge of the threads' hits
-  void BeginVertexHash();
-  void ClassifyVertices(int begin_vertex, int end_vertex);  // (global numbers; not kept objects')
-  // kept objects' vertices: only those of the searched chunks (and loose
-  // ones) get their outcode and cell; the others are beyond every side
-  void ClassifyKeptVertices();
-  void BuildVertexHash(int num_threads);
-  int BeginSearch(std::span<const CollisionObject> objects, int num_threads);
-  void SearchChunk(std::span<const CollisionObject> objects, int chunk);
-  // Whether entry e of hashed_, a vertex of object a, lies inside `tet` of
-  // object b; if so, adds the hit to the thread's hits.
-  void TestVertexInTet(const TetMesh& mesh_b, int b, SearchedTet& tet, int e, int a,
-                       ThreadScratch& scratch) const;
-  // the large tetrahedra the chunks met, against the vertices in their
-  // boxes: through coarse_hash_ when they are many, else each against
-  // every entry of hashed_
-  void SearchLargeTets(std::span<const CollisionObject> objects);
-  void BuildCoarseVertexHash(int num_threads);
-  void MergeHits();
   // the surfaces of the objects that may be penetrated (surface_list_;
   // with full, every face of those not kept, for the closest method), and
   // their vertex normals
@@ -244,22 +176,9 @@ class PenetrationSolver {
   void ComputeClosest(std::span<const CollisionObject> objects, bool all);
   void CollectResults(std::span<const CollisionObject> objects);
 
-  // the chunk of stage 1's i-th search
-  int SearchedChunk(int i) const { return any_kept_ ? search_chunks_[i] : i; }
   // (inline: stages 2 and 4 call these for every neighbour of a point)
-  // the hit of a global vertex in object `penetrated`, or -1
-  int FindHit(int vertex, int penetrated) const {
-    const auto [begin, end] = hit_range_[vertex];
-    for (int h = begin; h < end; ++h) {
-      if (hits_[h].penetrated == penetrated) return h;
-    }
-    return -1;
-  }
-  // a global vertex's position
-  Eigen::Vector3d Position(int global_vertex) const {
-    const int object = vertex_object_[global_vertex];
-    return positions_[object]->row(global_vertex - vertex_offset_[object]).transpose();
-  }
+  int FindHit(int vertex, int penetrated) const { return colliding_.FindHit(vertex, penetrated); }
+  Eigen::Vector3d Position(int global_vertex) const { return vertices_.Position(global_vertex); }
   // nearest point of B's surface to p (excluding triangles at vertex
   // `exclude` of B, or -1); returns false if B has no usable triangle
   bool ClosestSurfacePoint(std::span<const CollisionObject> objects, int b,
@@ -268,52 +187,16 @@ class PenetrationSolver {
   PenetrationOptions options_;
   double cell_size_ = 1.0;     // of every hash (vertices, each object's triangles), metres
   double length_scale_ = 1.0;  // the objects' average edge length, metres
-  double inverse_cell_size_ = 1.0;
-  // the grid cell of p (the same in every hash): read by several threads
-  // while one of them resets a hash
-  Eigen::Vector3i Cell(const Eigen::Vector3d& p) const { return GridCell(p, inverse_cell_size_); }
 
-  // per object, fixed while the object set does not change
-  std::vector<int> vertex_offset_;     // #objects + 1: global vertex index of each object's first
-  std::vector<int> vertex_object_;     // #global vertices
-  std::vector<int> object_of_offset_;  // the vertex_offset_ that vertex_object_ was filled for
-  std::vector<const Positions*> positions_;
+  GlobalVertices vertices_;
   // broad phase: per object its current (inflated) bounding box, and its
   // partners and search box
   std::vector<BroadPhaseBox> boxes_;  // #objects
   BroadPhase broad_phase_;
-  std::vector<int> chunk_offset_;  // #objects + 1: global index of stage 1's tet chunks
-  std::vector<KeptObject> kept_;   // #objects
-  bool any_kept_ = false;          // an object is active in kept_ this solve
-  // with any_kept_: the chunks stage 1 searches (every chunk of an object
-  // that is not kept, a kept one's searched chunks), ascending
-  std::vector<int> search_chunks_;
-
-  SpatialHash hash_;  // stage 1: vertices
-  std::vector<Eigen::Vector3i> vertex_cell_;
-  // BuildVertexHash: blocks of vertices to hash, each [begin, end) of the
-  // global vertices, or `kept`'s list of vertices in its search box (its
-  // first `end`); and each block's first insertion
-  struct VertexBlock {
-    int begin, end;
-    int kept;  // the kept object, or -1
-  };
-  std::vector<VertexBlock> vertex_blocks_;
-  std::vector<int> block_insertion_;
-  std::vector<std::uint8_t> vertex_outcode_;  // #global vertices: the sides of its object's
-                                              // search box it lies beyond (0: hashed)
-  HashedVertices hashed_;
-  // stage 1's large tetrahedra, when many: hashed_'s entries again, in a
-  // grid kCoarseCellFactor times coarser (a tet of 20^3 cells looks up 27
-  // cells of it), their positions in its bucket order (vertex: the entry
-  // in hashed_)
-  SpatialHash coarse_hash_;
-  HashedVertices coarse_;
-  std::vector<LargeTet> large_tets_;           // every thread's, for SearchLargeTets
+  std::vector<KeptObject> kept_;               // #objects
+  bool any_kept_ = false;                      // an object is active in kept_ this solve
+  CollidingPoints colliding_;                  // stage 1
   std::vector<ThreadScratch> thread_scratch_;  // #threads
-  std::vector<Hit> hits_;                      // sorted by (vertex, penetrated)
-  std::vector<std::array<int, 2>> hit_range_;  // #global vertices: its hits [begin, end)
-  std::vector<int> hit_place_;                 // MergeHits' counting sort: #global vertices + 1
 
   // the surfaces: those of the objects in surface_list_, the penetrated
   // ones, or every one with a partner when stage 1 and the surfaces share a

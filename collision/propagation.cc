@@ -55,9 +55,9 @@ void PenetrationSolver::Propagate(std::span<const CollisionObject> objects) {
     // this layer too: they stay without one if their directions cancel)
     ParallelFor(threads, 0, layer_size, [&](int i) {
       const int h = next_frontier_[i];
-      const int g = hits_[h].vertex;
-      const int a = vertex_object_[g];
-      const int v = g - vertex_offset_[a];
+      const int g = colliding_.hits()[h].vertex;
+      const int a = vertices_.object[g];
+      const int v = g - vertices_.offset[a];
       const TetMesh& mesh = *objects[a].mesh;
       const Eigen::Vector3d p = Position(g);
       double weight_sum = 0.0;
@@ -67,8 +67,8 @@ void PenetrationSolver::Propagate(std::span<const CollisionObject> objects) {
       std::vector<int>& candidates = thread_scratch_[omp_get_thread_num()].candidates;
       const size_t num_listed = candidates.size();
       for (int n = mesh.adjacency_offsets()[v]; n < mesh.adjacency_offsets()[v + 1]; ++n) {
-        const int j_global = vertex_offset_[a] + mesh.adjacency()[n];
-        const int j = FindHit(j_global, hits_[h].penetrated);
+        const int j_global = vertices_.offset[a] + mesh.adjacency()[n];
+        const int j = FindHit(j_global, colliding_.hits()[h].penetrated);
         if (j < 0) continue;
         if (layer_[j] < 0) {  // a later layer, or this one
           candidates.push_back(j);

@@ -62,7 +62,7 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
   Clock::time_point start = Clock::now();
   const int num_objects = static_cast<int>(objects.size());
   object_penetrated_.assign(num_objects, 0);
-  for (const Hit& hit : hits_) object_penetrated_[hit.penetrated] = 1;
+  for (const Hit& hit : colliding_.hits()) object_penetrated_[hit.penetrated] = 1;
   surface_list_.clear();
   for (int o = 0; o < num_objects; ++o) {
     if (object_penetrated_[o]) surface_list_.push_back(o);
@@ -84,7 +84,7 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
 }
 
 void PenetrationSolver::MakeSurface(std::span<const CollisionObject> objects, int o) {
-  surfaces_.Make(objects, o, kept_[o], vertex_outcode_.data() + vertex_offset_[o],
+  surfaces_.Make(objects, o, kept_[o], colliding_.outcodes(o),
                  thread_scratch_[omp_get_thread_num()].faces);
 }
 
