@@ -12,7 +12,7 @@
 //
 // Consistent method, per step:
 //   1. colliding points: vertices hashed by cell; every tetrahedron tests the
-//      vertices in the cells its bounding box covers (spatial_hash.h);
+//      vertices in the cells its bounding box covers (colliding_points.h);
 //   2. border points (colliding w.r.t. B with a neighbour that is not) and
 //      their intersection edges: the crossing with B's surface nearest the
 //      outside vertex q, and B's smooth normal there;
@@ -145,11 +145,10 @@ class PenetrationSolver {
 
  private:
   using Hit = CollidingPoints::Hit;
-  // What one thread of a parallel stage writes, on cache lines of its own:
-  // in a plain array, neighbouring threads' vector headers share a line,
-  // and every push_back (which moves the end pointer) would take that line
-  // away from the other core (measured: stage 1 on two threads did 24%
-  // more work in all than on one).
+  // What one thread of the surfaces and stages 2 to 4 writes, on cache
+  // lines of its own (as CollidingPoints' threads do: neighbouring threads'
+  // vector headers in a plain array would share a line, which every
+  // push_back would take away from the other core)
   struct alignas(64) ThreadScratch {
     std::vector<int> faces;           // surfaces: an object's faces in play
     std::vector<std::uint32_t> seen;  // stage 2: per triangle entry, the query
