@@ -10,6 +10,7 @@
 #include <utility>
 #include <vector>
 
+#include "collision/geometry.h"
 #include "mesh/generators.h"
 #include "mesh/same_bits.h"
 #include "tests/collision/scene_helpers.h"
@@ -29,11 +30,6 @@ std::uint8_t Outcode(const Eigen::Vector3d& p, const Eigen::Vector3d& lo,
     code |= static_cast<std::uint8_t>((p[k] > hi[k]) << (2 * k + 1));
   }
   return code;
-}
-
-bool BoxesMeet(const Eigen::Vector3d& lo_a, const Eigen::Vector3d& hi_a,
-               const Eigen::Vector3d& lo_b, const Eigen::Vector3d& hi_b) {
-  return (lo_a.array() <= hi_b.array()).all() && (lo_b.array() <= hi_a.array()).all();
 }
 
 // A deformed body (a box, a sphere; a sphere of 20 faces is small), a
@@ -158,7 +154,7 @@ TEST(Surfaces, MatchBruteForce) {
         });
         for (int index = begin; index < end; ++index) {
           const Surfaces::Entry& entry = surfaces.entry(index);
-          if (BoxesMeet(entry.lo, entry.hi, query_lo, query_hi)) {
+          if (BoxesOverlap(entry.lo, entry.hi, query_lo, query_hi)) {
             EXPECT_TRUE(found.count(index)) << "entry " << index << ", query " << q;
           }
         }
