@@ -63,7 +63,7 @@ void BroadPhase::Find(std::span<const BroadPhaseBox> boxes) {
   for (int i = 0; i < num_objects; ++i) {
     const int a = sweep_order_[i];
     if (left_out(a)) continue;
-    if (boxes[a].self_collision) pairs_.push_back({a, a});
+    if (MayCollide(boxes[a], boxes[a], /*same=*/true)) pairs_.push_back({a, a});
     // (the boxes that start before this one ends, by bisection)
     const int end =
         static_cast<int>(std::upper_bound(sweep_lo.begin() + i + 1, sweep_lo.begin() + num_objects,
@@ -74,7 +74,7 @@ void BroadPhase::Find(std::span<const BroadPhaseBox> boxes) {
       for (unsigned bits = box.Overlapping(sweep_lo_, sweep_hi_, j, end); bits != 0;
            bits &= bits - 1) {
         const int b = sweep_order_[j + std::countr_zero(bits)];
-        if (boxes[a].rigid && boxes[b].rigid) continue;  // the rigid engine's pair
+        if (!MayCollide(boxes[a], boxes[b], /*same=*/false)) continue;
         pairs_.push_back({a, b});
         pairs_.push_back({b, a});
       }

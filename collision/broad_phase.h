@@ -19,6 +19,16 @@
 
 namespace tetcosim {
 
+// Whether object a may collide with object b (`same`: they are one), the
+// pair rule of the broad phase and of stage 1 alike: an object with itself
+// only with self-collision, two rigid objects never (the rigid engine's
+// pair). Object: anything with flags `rigid` and `self_collision`
+// (BroadPhaseBox, CollisionObject).
+template <typename Object>
+constexpr bool MayCollide(const Object& a, const Object& b, bool same) {
+  return same ? b.self_collision : !(a.rigid && b.rigid);
+}
+
 // An object as the broad phase sees it.
 struct BroadPhaseBox {
   // its bounding box (world frame, metres), finite; empty (lo > hi in a

@@ -51,9 +51,10 @@ constexpr int kMaxKeyedPartners = 4;
 constexpr int kMinVerticesPerCountedHit = 32;
 
 // Whether stage 1 tests the vertices of object a against the tetrahedra of
-// object b (a vertex in b's search box may be of any object).
+// object b (a vertex in b's search box may be of any object): the broad
+// phase's rule (MayCollide)
 bool MayPenetrate(std::span<const CollisionObject> objects, int a, int b) {
-  return a == b ? objects[b].self_collision : !(objects[a].rigid && objects[b].rigid);
+  return MayCollide(objects[a], objects[b], a == b);
 }
 
 // Bit i of the outcode: p lies beyond side i of the box (x below, x above,
