@@ -3,9 +3,9 @@
 #include <algorithm>
 #include <bit>
 #include <limits>
+#include <numeric>
 
 #include "collision/simd4.h"
-#include "mesh/group_by_key.h"
 
 namespace tetcosim {
 
@@ -59,11 +59,17 @@ void BroadPhase::Find(std::span<const BroadPhaseBox> boxes) {
       sweep_hi_[k][i] = boxes[o].hi[k];
     }
   }
+  // each pair once, in the order found (a self pair as (a, a)), and each
+  // object's number of partners
   const std::vector<double>& sweep_lo = sweep_lo_[axis];
+  partner_offset_.assign(num_objects + 1, 0);
   for (int i = 0; i < num_objects; ++i) {
     const int a = sweep_order_[i];
     if (left_out(a)) continue;
-    if (MayCollide(boxes[a], boxes[a], /*same=*/true)) pairs_.push_back({a, a});
+    if (MayCollide(boxes[a], boxes[a], /*same=*/true)) {
+      pairs_.push_back({a, a});
+      ++partner_offset_[a + 1];
+    }
     // (the boxes that start before this one ends, by bisection)
     const int end =
         static_cast<int>(std::upper_bound(sweep_lo.begin() + i + 1, sweep_lo.begin() + num_objects,
@@ -76,33 +82,34 @@ void BroadPhase::Find(std::span<const BroadPhaseBox> boxes) {
         const int b = sweep_order_[j + std::countr_zero(bits)];
         if (!MayCollide(boxes[a], boxes[b], /*same=*/false)) continue;
         pairs_.push_back({a, b});
-        pairs_.push_back({b, a});
+        ++partner_offset_[a + 1];
+        ++partner_offset_[b + 1];
       }
     }
   }
-  // per object its partners, with the overlap of the two boxes, in the
-  // order found
-  GroupByKey(
-      num_objects,
-      [&](auto emit) {
-        for (int i = 0; i < static_cast<int>(pairs_.size()); ++i) emit(pairs_[i][0], i);
-      },
-      partner_offset_, partner_pair_);
+  // per object its partners, in the order their pairs were found (a
+  // counting sort: one pass over the pairs, which puts each in both of its
+  // objects' rows), with the overlap of the two boxes
+  std::partial_sum(partner_offset_.begin(), partner_offset_.end(), partner_offset_.begin());
   partnered_.clear();
   for (int o = 0; o < num_objects; ++o) {
     if (partner_offset_[o + 1] > partner_offset_[o]) partnered_.push_back(o);
   }
-  partners_.resize(pairs_.size());
+  partners_.resize(partner_offset_[num_objects]);
+  partner_fill_.assign(partner_offset_.begin(), partner_offset_.end() - 1);
   search_lo_.assign(num_objects, Eigen::Vector3d::Constant(inf));
   search_hi_.assign(num_objects, Eigen::Vector3d::Constant(-inf));
-  for (size_t k = 0; k < partners_.size(); ++k) {
-    const auto [b, a] = pairs_[partner_pair_[k]];
-    Partner& partner = partners_[k];
+  auto add_partner = [&](int b, int a) {  // a as b's partner
+    Partner& partner = partners_[partner_fill_[b]++];
     partner.object = a;
     partner.lo = boxes[a].lo.cwiseMax(boxes[b].lo);
     partner.hi = boxes[a].hi.cwiseMin(boxes[b].hi);
     search_lo_[b] = search_lo_[b].cwiseMin(partner.lo);
     search_hi_[b] = search_hi_[b].cwiseMax(partner.hi);
+  };
+  for (const auto& [a, b] : pairs_) {
+    add_partner(a, b);
+    if (b != a) add_partner(b, a);
   }
 }
 

@@ -66,9 +66,9 @@ class BroadPhase {
  private:
   std::vector<int> sweep_order_;                        // #objects, by lo on the sweep axis
   std::vector<double> sweep_lo_[3], sweep_hi_[3];       // their boxes in that order (padded)
-  std::vector<std::array<int, 2>> pairs_;               // (object, partner), both ways
+  std::vector<std::array<int, 2>> pairs_;               // (a, b), each pair once, as found
   std::vector<int> partner_offset_;                     // #objects + 1
-  std::vector<int> partner_pair_;                       // per partner: its index in pairs_
+  std::vector<int> partner_fill_;                       // #objects: next place in its row
   std::vector<Partner> partners_;                       // object after object
   std::vector<Eigen::Vector3d> search_lo_, search_hi_;  // #objects
   std::vector<int> partnered_;
