@@ -5,6 +5,7 @@
 #include <span>
 
 #include "collision/penetration_internal.h"
+#include "mesh/group_by_key.h"
 #include "mesh/same_bits.h"
 
 namespace tetcosim {
@@ -131,12 +132,12 @@ bool KeptObject::Keep(const CollisionObject& object) {
     tet_run[object_mesh.spatial_tet_order()[n]] = std::min(n / kChunkTets, num_runs - 1);
   }
   const int num_faces = static_cast<int>(object_mesh.surface().rows());
-  run_face_offset.assign(num_runs + 1, 0);
-  for (int f = 0; f < num_faces; ++f) ++run_face_offset[tet_run[object_mesh.surface_tet()[f]] + 1];
-  for (int r = 0; r < num_runs; ++r) run_face_offset[r + 1] += run_face_offset[r];
-  run_faces.resize(num_faces);
-  std::vector<int> next(run_face_offset.begin(), run_face_offset.end() - 1);
-  for (int f = 0; f < num_faces; ++f) run_faces[next[tet_run[object_mesh.surface_tet()[f]]]++] = f;
+  GroupByKey(
+      num_runs,
+      [&](auto emit) {
+        for (int f = 0; f < num_faces; ++f) emit(tet_run[object_mesh.surface_tet()[f]], f);
+      },
+      run_face_offset, run_faces);
   face_lo.resize(num_faces);
   face_hi.resize(num_faces);
   for (int f = 0; f < num_faces && finite; ++f) {
