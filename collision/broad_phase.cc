@@ -89,7 +89,10 @@ void BroadPhase::Find(std::span<const BroadPhaseBox> boxes) {
   }
   // per object its partners, in the order their pairs were found (a
   // counting sort: one pass over the pairs, which puts each in both of its
-  // objects' rows), with the overlap of the two boxes
+  // objects' rows), with the overlap of the two boxes. (Not GroupByKey,
+  // whose entries would have to name the pair and its side, read back
+  // through an index: 120 spheres, 4,811,361 instructions a solve against
+  // 4,754,333.)
   std::partial_sum(partner_offset_.begin(), partner_offset_.end(), partner_offset_.begin());
   partnered_.clear();
   for (int o = 0; o < num_objects; ++o) {
