@@ -128,14 +128,14 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
   // self-collision) and the region where they can reach into B
   boxes_.resize(num_objects);
   kept_.resize(num_objects);
-  any_kept_ = false;
+  bool any_kept = false;  // (an object is active in kept_ this solve)
   for (int o = 0; o < num_objects; ++o) {
     KeptObject& kept = kept_[o];
     const bool keepable = objects[o].fixed || objects[o].frame != nullptr;
     kept.active = keepable && kept.Keep(objects[o]);
     if (!keepable) kept.mesh = nullptr;          // (seen moving: keep nothing)
     if (!kept.active) kept.outcode_offset = -1;  // (its outcodes: all written)
-    any_kept_ |= kept.active;
+    any_kept |= kept.active;
     stats_.fixed_objects += kept.active && !kept.framed;
     stats_.framed_objects += kept.active && kept.framed;
     Eigen::Vector3d lo, hi;
@@ -166,7 +166,7 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
     boxes_[o] = {lo, hi, objects[o].rigid, objects[o].self_collision};
   }
   broad_phase_.Find(boxes_);
-  colliding_.Begin(objects, vertices_, kept_, any_kept_, broad_phase_, cell_size_);
+  colliding_.Begin(objects, vertices_, kept_, any_kept, broad_phase_, cell_size_);
 }
 
 void PenetrationSolver::CollectResults(std::span<const CollisionObject> /*objects*/) {

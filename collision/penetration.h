@@ -193,7 +193,6 @@ class PenetrationSolver {
   std::vector<BroadPhaseBox> boxes_;  // #objects
   BroadPhase broad_phase_;
   std::vector<KeptObject> kept_;               // #objects
-  bool any_kept_ = false;                      // an object is active in kept_ this solve
   CollidingPoints colliding_;                  // stage 1
   std::vector<ThreadScratch> thread_scratch_;  // #threads
 

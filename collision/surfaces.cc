@@ -218,6 +218,7 @@ void Surfaces::Make(std::span<const CollisionObject> objects, int o, const KeptO
     }
   }
 }
+
 void Surfaces::AddRemaining(std::span<const CollisionObject> objects, int b, const KeptObject& kept,
                             const std::uint8_t* outcode) {
   if (fully_[b] || kept.active) return;  // (kept: its tree of all faces)
@@ -234,6 +235,7 @@ void Surfaces::AddRemaining(std::span<const CollisionObject> objects, int b, con
   }
   rest_end_[b] = static_cast<int>(entries_.size());
 }
+
 void Surfaces::BuildTree(int b) {
   Table& hashed = tables_[b];
   hashed.tree_lo.clear();
@@ -249,6 +251,7 @@ void Surfaces::BuildTree(int b) {
   }
   hashed.tree.Build(hashed.tree_lo, hashed.tree_hi);
 }
+
 void Surfaces::MakeTriangle(std::span<const CollisionObject> objects, int object, int f,
                             Entry& entry, Geometry& geometry) const {
   const Positions& x = *objects[object].positions;
@@ -263,6 +266,7 @@ void Surfaces::MakeTriangle(std::span<const CollisionObject> objects, int object
   geometry.cell_lo = GridCell(entry.lo, inverse_cell_size_);
   geometry.cell_hi = GridCell(entry.hi, inverse_cell_size_);
 }
+
 void Surfaces::Insert(int index) {
   const Geometry& geometry = geometry_[index];
   Table& hashed = tables_[entries_[index].object];
@@ -278,6 +282,7 @@ void Surfaces::Insert(int index) {
     }
   }
 }
+
 void Surfaces::BuildHash(int object) {
   Table& hashed = tables_[object];
   hashed.large_lo.clear();
