@@ -1,4 +1,4 @@
-// What a second thread can add on this machine, in two numbers:
+// What a second thread can add on this machine, in three numbers:
 //
 // - round trip (ns): how long a cache line takes to go from one core to
 //   the other and back. Two threads, one on each core, pass a counter to
@@ -12,17 +12,26 @@
 //   operations in registers): 2.00 on two free cores. Less means a core
 //   is shared with other work (this VM's cores are), and a loop split
 //   evenly over both threads cannot gain more from the second.
+// - fork and join (us): what an empty OpenMP parallel region of two
+//   threads costs, start to end: what every ParallelFor of the solver pays
+//   before any work is split (a few round trips of the team's lines). The
+//   two-cube solves use two such regions; at 3 to 4.5 us each (seen on
+//   2026-12-03, round trip 415 to 490 ns) they are a tenth of the 10%
+//   cubes' two-thread solve.
 //
 //     build/bench/two_cores [cpu_a cpu_b]   (default 0 1)
 //
-// prints "round_trip_ns capacity": the fastest of 9 rounds of 100,000 round
-// trips, and the fastest of 5 timings each of each core alone and both. The
-// threads are pinned to the two CPUs where the system allows it (else the
-// scheduler places them). scripts/bench-collision prints both beside its
-// speed-ups on two threads, which cannot be read without them: on the
-// development machine they moved within an hour between 69 and 560 ns and
-// between 2.00 and 1.03.
+// prints "round_trip_ns capacity fork_join_us": the fastest of 9 rounds of
+// 100,000 round trips, the fastest of 5 timings each of each core alone and
+// both, and the fastest of 9 rounds of 10,000 regions. The round trip's and
+// the work's threads are pinned to the two CPUs where the system allows it
+// (else the scheduler places them); the OpenMP team is placed as the
+// solver's is, by the runtime. scripts/bench-collision prints all three
+// beside its speed-ups on two threads, which cannot be read without them: on
+// the development machine the first two moved within an hour between 69 and
+// 560 ns and between 2.00 and 1.03.
 
+#include <omp.h>
 #include <pthread.h>
 #include <sched.h>
 
@@ -42,6 +51,8 @@ constexpr long kRoundTrips = 100000;
 constexpr int kRounds = 9;
 constexpr long kWorkIterations = 20'000'000;  // about 15 ms on one core
 constexpr int kWorkRounds = 5;
+constexpr int kRegions = 10000;
+constexpr int kRegionRounds = 9;
 
 // Pins the calling thread to one CPU; false if the system refuses.
 bool PinTo(int cpu) {
@@ -142,6 +153,25 @@ void TimeWork(const int cpus[2], double alone[2], double& both) {
   if (sink.load() == 0) std::fprintf(stderr, "(never: the work's value is not 0)\n");
 }
 
+// Fastest time of one empty parallel region of two OpenMP threads, in
+// seconds (over rounds of kRegions, after one region that starts the team).
+double ForkJoin() {
+  std::atomic<int> sink{0};
+  auto region = [&] {
+#pragma omp parallel num_threads(2)
+    sink.fetch_add(omp_get_thread_num(), std::memory_order_relaxed);
+  };
+  region();
+  double best = 1e300;
+  for (int round = 0; round < kRegionRounds; ++round) {
+    const Clock::time_point start = Clock::now();
+    for (int i = 0; i < kRegions; ++i) region();
+    best = std::min(best, std::chrono::duration<double>(Clock::now() - start).count());
+  }
+  if (sink.load() == 0) std::fprintf(stderr, "(never: the second thread ran)\n");
+  return best / kRegions;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -171,9 +201,15 @@ int main(int argc, char** argv) {
   const double round_trip = RoundTrip(cpus, pinned);
   double alone[2], both = 0.0;
   TimeWork(cpus, alone, both);
+  // (unpinned: the OpenMP team's threads are placed by the system, as in
+  // the solver)
+  cpu_set_t all = allowed;
+  sched_setaffinity(0, sizeof(all), &all);
+  const double fork_join = ForkJoin();
   if (!pinned) {
     std::fprintf(stderr, "note: could not pin the threads to CPUs %d and %d\n", cpus[0], cpus[1]);
   }
-  std::printf("%.1f %.2f\n", round_trip * 1e9, 2.0 * std::min(alone[0], alone[1]) / both);
+  std::printf("%.1f %.2f %.2f\n", round_trip * 1e9, 2.0 * std::min(alone[0], alone[1]) / both,
+              fork_join * 1e6);
   return 0;
 }
