@@ -8,6 +8,53 @@
 #include "collision/simd4.h"
 
 namespace tetcosim {
+namespace {
+
+// A pile is cut into strips only where that makes this many strips or more,
+// each of this many boxes at least on average: below it, one strip, the
+// plain sweep. (Cutting costs about what it saves at fewer: piles of 240
+// and 1200 paper spheres, cut into 3 and 6 strips, took 0.3 to 0.7% more
+// instructions a solve than in one; 9600, in about 30, 4.4% fewer.)
+constexpr int kMinStrips = 8;
+constexpr int kMinBoxesPerStrip = 64;
+// The strips span the box centres but for 1/kOutlierShare of them at either
+// end (MakeStrips).
+constexpr int kOutlierShare = 64;
+
+}  // namespace
+
+// Strips as wide as the boxes' median extent across them (so that a box
+// reaches into one or two), over the span of all but the outermost
+// 1/kOutlierShare of the box centres at either end (a body far from the
+// pile does not stretch the strips; the boxes beyond fall in the first or
+// last strip), at most one per kMinBoxesPerStrip boxes; one strip when that
+// makes fewer than kMinStrips. num_in boxes are not left out (left_out_).
+BroadPhase::Strips BroadPhase::MakeStrips(std::span<const BroadPhaseBox> boxes, int num_in,
+                                          int axis) {
+  Strips strips;
+  if (num_in < kMinStrips * kMinBoxesPerStrip) return strips;
+  extent_.clear();
+  centre_.clear();
+  for (int o = 0; o < static_cast<int>(boxes.size()); ++o) {
+    if (left_out_[o]) continue;
+    extent_.push_back(boxes[o].hi[axis] - boxes[o].lo[axis]);
+    centre_.push_back(0.5 * (boxes[o].lo[axis] + boxes[o].hi[axis]));
+  }
+  std::nth_element(extent_.begin(), extent_.begin() + num_in / 2, extent_.end());
+  const int first = num_in / kOutlierShare;
+  const int last = num_in - 1 - first;
+  std::nth_element(centre_.begin(), centre_.begin() + first, centre_.end());
+  std::nth_element(centre_.begin() + first + 1, centre_.begin() + last, centre_.end());
+  const double lo = centre_[first];
+  const double hi = centre_[last];
+  const double count =
+      std::min((hi - lo) / extent_[num_in / 2], static_cast<double>(num_in) / kMinBoxesPerStrip);
+  if (!(count >= kMinStrips)) return strips;  // (also a median extent of 0 over no span: NaN)
+  strips.count = static_cast<int>(count);
+  strips.origin = lo;
+  strips.inverse_width = strips.count / (hi - lo);
+  return strips;
+}
 
 void BroadPhase::Find(std::span<const BroadPhaseBox> boxes) {
   const int num_objects = static_cast<int>(boxes.size());
@@ -39,6 +86,12 @@ void BroadPhase::Find(std::span<const BroadPhaseBox> boxes) {
   }
   int axis = 0;
   spread.maxCoeff(&axis);  // (the first of equal ones)
+  // across the sweep, strips along the axis where the centres spread next
+  // most (MakeStrips)
+  int strip_axis = axis == 0 ? 1 : 0;
+  for (int k = 0; k < 3; ++k) {
+    if (k != axis && spread[k] > spread[strip_axis]) strip_axis = k;
+  }
   pairs_.clear();
   sweep_order_.resize(num_objects);
   for (int o = 0; o < num_objects; ++o) sweep_order_[o] = o;
@@ -47,43 +100,79 @@ void BroadPhase::Find(std::span<const BroadPhaseBox> boxes) {
     const double b_lo = left_out(b) ? inf : boxes[b].lo[axis];
     return a_lo != b_lo ? a_lo < b_lo : a < b;
   });
-  // the boxes in sweep order by coordinate: a box is tested against the
-  // boxes after it that start before it ends along the axis, four at a
-  // time (in a pile of 120 spheres, about 50 of them per box)
+  const Strips strips = MakeStrips(boxes, num_in, strip_axis);
+  // each strip's boxes in sweep order (a box in every strip it reaches
+  // into; one strip, the common case of a few bodies: the boxes left in),
+  // by coordinate
+  const bool cut = strips.count > 1;
+  strip_offset_.assign(strips.count + 1, 0);
+  strip_object_.clear();
+  if (!cut) {
+    for (int o : sweep_order_) {
+      if (!left_out(o)) strip_object_.push_back(o);
+    }
+    strip_offset_[1] = static_cast<int>(strip_object_.size());
+  } else {
+    for (int o : sweep_order_) {
+      if (left_out(o)) continue;
+      for (int s = strips.Of(boxes[o].lo[strip_axis]); s <= strips.Of(boxes[o].hi[strip_axis]);
+           ++s) {
+        ++strip_offset_[s + 1];
+      }
+    }
+    std::partial_sum(strip_offset_.begin(), strip_offset_.end(), strip_offset_.begin());
+    strip_object_.resize(strip_offset_[strips.count]);
+    strip_fill_.assign(strip_offset_.begin(), strip_offset_.end() - 1);
+    for (int o : sweep_order_) {
+      if (left_out(o)) continue;
+      for (int s = strips.Of(boxes[o].lo[strip_axis]); s <= strips.Of(boxes[o].hi[strip_axis]);
+           ++s) {
+        strip_object_[strip_fill_[s]++] = o;
+      }
+    }
+  }
+  const int num_entries = static_cast<int>(strip_object_.size());
   for (int k = 0; k < 3; ++k) {
-    ResizePadded(sweep_lo_[k], num_objects);
-    ResizePadded(sweep_hi_[k], num_objects);
-    for (int i = 0; i < num_objects; ++i) {
-      const int o = sweep_order_[i];
-      sweep_lo_[k][i] = left_out(o) ? inf : boxes[o].lo[k];
-      sweep_hi_[k][i] = boxes[o].hi[k];
+    ResizePadded(sweep_lo_[k], num_entries);
+    ResizePadded(sweep_hi_[k], num_entries);
+    for (int n = 0; n < num_entries; ++n) {
+      sweep_lo_[k][n] = boxes[strip_object_[n]].lo[k];
+      sweep_hi_[k][n] = boxes[strip_object_[n]].hi[k];
     }
   }
   // each pair once, in the order found (a self pair as (a, a)), and each
-  // object's number of partners
+  // object's number of partners: a box is tested against the boxes after
+  // it in its strip that start before it ends along the sweep axis, four at
+  // a time (in a pile of 120 spheres, one strip, about 50 of them a box); a
+  // pair in several strips is taken in the one that holds the low side of
+  // its overlap across them (both boxes are in that strip)
   const std::vector<double>& sweep_lo = sweep_lo_[axis];
   partner_offset_.assign(num_objects + 1, 0);
-  for (int i = 0; i < num_objects; ++i) {
-    const int a = sweep_order_[i];
-    if (left_out(a)) continue;
-    if (MayCollide(boxes[a], boxes[a], /*same=*/true)) {
-      pairs_.push_back({a, a});
-      ++partner_offset_[a + 1];
-    }
-    // (the boxes that start before this one ends, by bisection)
-    const int end =
-        static_cast<int>(std::upper_bound(sweep_lo.begin() + i + 1, sweep_lo.begin() + num_objects,
-                                          boxes[a].hi[axis]) -
-                         sweep_lo.begin());
-    const Box4 box(boxes[a].lo, boxes[a].hi);
-    for (int j = i + 1; j < end; j += 4) {
-      for (unsigned bits = box.Overlapping(sweep_lo_, sweep_hi_, j, end); bits != 0;
-           bits &= bits - 1) {
-        const int b = sweep_order_[j + std::countr_zero(bits)];
-        if (!MayCollide(boxes[a], boxes[b], /*same=*/false)) continue;
-        pairs_.push_back({a, b});
+  for (int s = 0; s < strips.count; ++s) {
+    const int strip_end = strip_offset_[s + 1];
+    for (int n = strip_offset_[s]; n < strip_end; ++n) {
+      const int a = strip_object_[n];
+      const double a_lo = boxes[a].lo[strip_axis];
+      if ((!cut || strips.Of(a_lo) == s) && MayCollide(boxes[a], boxes[a], /*same=*/true)) {
+        pairs_.push_back({a, a});
         ++partner_offset_[a + 1];
-        ++partner_offset_[b + 1];
+      }
+      // (the boxes that start before this one ends, by bisection)
+      const int end =
+          static_cast<int>(std::upper_bound(sweep_lo.begin() + n + 1, sweep_lo.begin() + strip_end,
+                                            boxes[a].hi[axis]) -
+                           sweep_lo.begin());
+      const Box4 box(boxes[a].lo, boxes[a].hi);
+      for (int j = n + 1; j < end; j += 4) {
+        for (unsigned bits = box.Overlapping(sweep_lo_, sweep_hi_, j, end); bits != 0;
+             bits &= bits - 1) {
+          const int b = strip_object_[j + std::countr_zero(bits)];
+          if (cut && strips.Of(std::max(a_lo, boxes[b].lo[strip_axis])) != s) continue;
+          if (!MayCollide(boxes[a], boxes[b], /*same=*/false)) continue;
+          pairs_.push_back({a, b});
+          ++partner_offset_[a + 1];
+          ++partner_offset_[b + 1];
+        }
       }
     }
   }

@@ -9,10 +9,17 @@
 //
 // Sweep and prune: the boxes sorted by their low side along the axis where
 // their centres spread most, each tested against those after it that start
-// before it ends along that axis, four at a time. Deterministic: partners in
-// the order found, which depends only on the boxes and flags.
+// before it ends along that axis, four at a time. A large pile is first cut
+// into strips along the axis where the centres spread next most, each box
+// in every strip it reaches into, and swept strip by strip: a box is then
+// tested against the boxes of the strips it is in, about as wide as it is,
+// not against a slab across the whole pile (in a pile about as wide as
+// long, a number that stays flat as the pile grows, where the slab's grows
+// as the square root of the pile's size). Deterministic: partners in the order found, which depends
+// only on the boxes and flags.
 
 #include <Eigen/Core>
+#include <algorithm>
 #include <array>
 #include <span>
 #include <vector>
@@ -62,14 +69,36 @@ class BroadPhase {
   const Eigen::Vector3d& search_hi(int b) const { return search_hi_[b]; }
   // The objects with at least one partner, ascending.
   const std::vector<int>& partnered() const { return partnered_; }
+  // How many strips the last Find swept (1: the plain sweep; 0 before the
+  // first).
+  int num_strips() const { return static_cast<int>(strip_offset_.size()) - 1; }
 
  private:
-  std::vector<int> sweep_order_;                        // #objects, by lo on the sweep axis
-  std::vector<double> sweep_lo_[3], sweep_hi_[3];       // their boxes in that order (padded)
-  std::vector<std::array<int, 2>> pairs_;               // (a, b), each pair once, as found
-  std::vector<int> partner_offset_;                     // #objects + 1
-  std::vector<int> partner_fill_;                       // #objects: next place in its row
-  std::vector<Partner> partners_;                       // object after object
+  // strips [origin + s / inverse_width, origin + (s + 1) / inverse_width)
+  // along the strip axis, s = 0 .. count - 1, the first and last open
+  // outward
+  struct Strips {
+    int count = 1;
+    double origin = 0.0;
+    double inverse_width = 0.0;
+    // the strip of coordinate x: monotone in x (NaN: 0)
+    int Of(double x) const {
+      return static_cast<int>(
+          std::min(static_cast<double>(count - 1), std::max(0.0, (x - origin) * inverse_width)));
+    }
+  };
+  Strips MakeStrips(std::span<const BroadPhaseBox> boxes, int num_in, int axis);
+
+  std::vector<int> sweep_order_;                   // #objects, by lo on the sweep axis
+  std::vector<int> strip_offset_;                  // #strips + 1: each strip's entries
+  std::vector<int> strip_fill_;                    // #strips: next place in its entries
+  std::vector<int> strip_object_;                  // per entry: its object, strip by strip
+  std::vector<double> sweep_lo_[3], sweep_hi_[3];  // per entry: its object's box (padded)
+  std::vector<double> extent_, centre_;            // scratch: the boxes' extents and centres across
+  std::vector<std::array<int, 2>> pairs_;          // (a, b), each pair once, as found
+  std::vector<int> partner_offset_;                // #objects + 1
+  std::vector<int> partner_fill_;                  // #objects: next place in its row
+  std::vector<Partner> partners_;                  // object after object
   std::vector<Eigen::Vector3d> search_lo_, search_hi_;  // #objects
   std::vector<int> partnered_;
   std::vector<char> left_out_;  // #objects: its box is empty

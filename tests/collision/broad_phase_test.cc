@@ -6,6 +6,7 @@
 #include <limits>
 #include <random>
 #include <tuple>
+#include <utility>
 #include <vector>
 
 namespace tetcosim {
@@ -115,6 +116,36 @@ TEST(BroadPhase, MatchesBruteForce) {
   }
 }
 
+// Piles wide along two axes, of 600 to 3000 boxes, are swept in strips (a
+// box in each strip it reaches into, a pair taken in one of them): the same
+// partners as brute force, with corners on a grid that puts many on the
+// strips' sides, boxes of zero extent, one box across the whole pile and one
+// far outside it.
+TEST(BroadPhase, StripsMatchBruteForce) {
+  std::mt19937 rng(7);
+  BroadPhase broad_phase;
+  for (int n : {600, 3000}) {
+    for (const Eigen::Vector3d& extent :
+         {Eigen::Vector3d(30.0, 30.0, 1.0), Eigen::Vector3d(1.0, 30.0, 60.0),
+          Eigen::Vector3d(40.0, 2.0, 20.0)}) {
+      std::vector<BroadPhaseBox> boxes = RandomBoxes(n, extent, 0.5, rng);
+      boxes[n / 2].lo = Eigen::Vector3d::Zero();  // across the pile
+      boxes[n / 2].hi = extent;
+      boxes[n / 3].lo = 1e3 * extent;  // beyond it
+      boxes[n / 3].hi = 1e3 * extent + Eigen::Vector3d::Ones();
+      broad_phase.Find(boxes);
+      SCOPED_TRACE(testing::Message() << n << " boxes over " << extent.transpose());
+      EXPECT_GE(broad_phase.num_strips(), 8);  // (else this would test the plain sweep)
+      ExpectMatchesBruteForce(broad_phase, boxes);
+    }
+  }
+  // a row along one axis stays one strip
+  const std::vector<BroadPhaseBox> row = RandomBoxes(3000, {300.0, 1.0, 1.0}, 0.5, rng);
+  broad_phase.Find(row);
+  EXPECT_EQ(broad_phase.num_strips(), 1);
+  ExpectMatchesBruteForce(broad_phase, row);
+}
+
 // Every box the same, all rigid but one: the one deformable is everyone's
 // partner, the rigid ones none of each other's; ties everywhere.
 TEST(BroadPhase, CoincidentBoxesAndRigidPairs) {
@@ -138,15 +169,25 @@ TEST(BroadPhase, DeterministicOrder) {
   std::mt19937 rng(3);
   const std::vector<BroadPhaseBox> small = RandomBoxes(50, {3.0, 3.0, 3.0}, 0.25, rng);
   const std::vector<BroadPhaseBox> large = RandomBoxes(400, {6.0, 6.0, 6.0}, 0.25, rng);
-  BroadPhase reused, fresh;
-  reused.Find(large);
-  reused.Find(small);
-  fresh.Find(small);
-  for (int b = 0; b < static_cast<int>(small.size()); ++b) {
-    ASSERT_EQ(reused.partner_begin(b), fresh.partner_begin(b));
-    ASSERT_EQ(reused.partner_end(b), fresh.partner_end(b));
-    for (int i = fresh.partner_begin(b); i < fresh.partner_end(b); ++i) {
-      EXPECT_EQ(reused.partner(i).object, fresh.partner(i).object);
+  // (and in strips: a pile of 2000 after one of 3000)
+  const std::vector<BroadPhaseBox> pile = RandomBoxes(2000, {20.0, 20.0, 1.0}, 0.25, rng);
+  const std::vector<BroadPhaseBox> wider = RandomBoxes(3000, {40.0, 30.0, 1.0}, 0.25, rng);
+  for (const auto& [first, second] :
+       {std::pair(&large, &small), std::pair(&wider, &pile), std::pair(&pile, &small)}) {
+    BroadPhase reused, fresh;
+    reused.Find(*first);
+    reused.Find(*second);
+    fresh.Find(*second);
+    ASSERT_EQ(reused.num_strips(), fresh.num_strips());
+    if (second == &pile) {
+      EXPECT_GE(fresh.num_strips(), 8);  // (it is cut)
+    }
+    for (int b = 0; b < static_cast<int>(second->size()); ++b) {
+      ASSERT_EQ(reused.partner_begin(b), fresh.partner_begin(b));
+      ASSERT_EQ(reused.partner_end(b), fresh.partner_end(b));
+      for (int i = fresh.partner_begin(b); i < fresh.partner_end(b); ++i) {
+        EXPECT_EQ(reused.partner(i).object, fresh.partner(i).object);
+      }
     }
   }
 }
