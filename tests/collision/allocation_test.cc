@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <new>
 #include <tuple>
+#include <vector>
 
 #include "collision/penetration.h"
 #include "tests/collision/scene_helpers.h"
@@ -85,6 +86,38 @@ TEST(Allocation, WarmSolvesAllocateNothing) {
       EXPECT_GT(solver.stats().fallback, 0);
     }
   }
+}
+
+// A layer of 576 paper spheres, which the broad phase cuts into strips
+// (from 512 objects; the layout of CollidingPoints.PileInStripsMatchesBruteForce,
+// which checks that), settling a little every solve: after two solves,
+// nothing more is allocated.
+TEST(Allocation, WarmSolvesOfAPileInStripsAllocateNothing) {
+  testing::TestScene scene;
+  const TetMesh sphere = TetMesh::Build(MakeShape("sphere:size=0.02:res=0"));
+  for (int i = 0; i < 24; ++i) {
+    for (int j = 0; j < 24; ++j) {
+      scene.Add(sphere, testing::Pose({0.03 * i, 0.03 * j, 0.001 * ((i * 7 + j * 3) % 5)}));
+    }
+  }
+  std::vector<Positions> start;
+  for (const auto& x : scene.positions) start.push_back(*x);
+  PenetrationOptions options;
+  options.num_threads = 1;
+  PenetrationSolver solver(options);
+  auto solve = [&](int k) {  // (each sphere down by k x 0.1 to 0.2 mm, the higher ones more)
+    for (size_t o = 0; o < start.size(); ++o) {
+      *scene.positions[o] = start[o];
+      scene.positions[o]->col(2).array() -= 1e-4 * k * (1.0 + start[o](0, 2) / 0.004);
+    }
+    solver.Solve(scene.objects);
+  };
+  solve(0);
+  solve(1);
+  const long before = allocations.load();
+  for (int k = 2; k < 5; ++k) solve(k);
+  EXPECT_EQ(allocations.load() - before, 0);
+  EXPECT_GT(solver.results().size(), 1000u);
 }
 
 }  // namespace

@@ -22,19 +22,34 @@
 namespace tetcosim::testing {
 
 // (object, vertex, penetrated) -> containing tet, by testing every vertex
-// against every tetrahedron (the oracle for the spatial hash)
+// against every tetrahedron (the oracle for the spatial hash), but for the
+// pairs of objects whose bounding boxes, grown by a millionth of their
+// extent, are apart (no vertex of one can then be inside the other: a
+// scene of hundreds of bodies, brute force in all else)
 inline std::map<std::tuple<int, int, int>, int> BruteForceInside(const TestScene& scene) {
+  const int num_objects = static_cast<int>(scene.objects.size());
+  std::vector<Eigen::Vector3d> lo(num_objects), hi(num_objects);
+  for (int o = 0; o < num_objects; ++o) {
+    lo[o] = scene.objects[o].positions->colwise().minCoeff().transpose();
+    hi[o] = scene.objects[o].positions->colwise().maxCoeff().transpose();
+    const Eigen::Vector3d margin = Eigen::Vector3d::Constant(1e-6 * (hi[o] - lo[o]).maxCoeff());
+    lo[o] -= margin;
+    hi[o] += margin;
+  }
   std::map<std::tuple<int, int, int>, std::pair<double, int>> best;
-  for (int b = 0; b < static_cast<int>(scene.objects.size()); ++b) {
+  for (int b = 0; b < num_objects; ++b) {
     const CollisionObject& ob = scene.objects[b];
     for (int t = 0; t < ob.mesh->num_tets(); ++t) {
       auto tet = ob.mesh->tets().row(t);
       Eigen::Vector3d c[4];
       for (int i = 0; i < 4; ++i) c[i] = ob.positions->row(tet[i]).transpose();
-      for (int a = 0; a < static_cast<int>(scene.objects.size()); ++a) {
+      for (int a = 0; a < num_objects; ++a) {
         const CollisionObject& oa = scene.objects[a];
         if (a == b && !ob.self_collision) continue;
         if (a != b && oa.rigid && ob.rigid) continue;
+        if ((lo[a].array() > hi[b].array()).any() || (lo[b].array() > hi[a].array()).any()) {
+          continue;
+        }
         for (int v = 0; v < oa.mesh->num_vertices(); ++v) {
           if (a == b && (tet.array() == v).any()) continue;
           Eigen::Vector4d l;

@@ -10,6 +10,8 @@
 #include <string>
 #include <vector>
 
+#include "collision/broad_phase.h"
+#include "collision/collision_object.h"
 #include "collision/geometry.h"
 #include "collision/penetration.h"
 #include "mesh/generators.h"
@@ -112,6 +114,36 @@ TEST(CollidingPoints, RowsAlongEachAxisMatchBruteForce) {
     PenetrationSolver solver;
     solver.Solve(scene.objects);
     EXPECT_GT(solver.stats().colliding, 0);
+  }
+}
+
+// A layer of 576 paper spheres (24 x 24, each overlapping its neighbours,
+// one in five rigid): the broad phase cuts it into strips (from 512
+// objects); the same colliding points as brute force, on one thread and
+// two.
+TEST(CollidingPoints, PileInStripsMatchesBruteForce) {
+  std::mt19937 rng(13);
+  std::uniform_real_distribution<double> jitter(-0.003, 0.003);
+  const TetMesh sphere = TetMesh::Build(MakeShape("sphere:size=0.02:res=0"));
+  TestScene scene;
+  std::vector<BroadPhaseBox> boxes;
+  for (int i = 0; i < 24; ++i) {
+    for (int j = 0; j < 24; ++j) {
+      const Eigen::Vector3d at(0.03 * i + jitter(rng), 0.03 * j + jitter(rng), jitter(rng));
+      const int o = scene.Add(sphere, Pose(at, 100 * jitter(rng)), /*rigid=*/(i + j) % 5 == 0);
+      const PositionBounds bounds = PositionBounds::Of(*scene.positions[o]);
+      boxes.push_back({bounds.lo, bounds.hi, scene.objects[o].rigid, false});
+    }
+  }
+  BroadPhase broad_phase;  // (as the solver's sees the pile)
+  broad_phase.Find(boxes);
+  ASSERT_GE(broad_phase.num_strips(), 8);
+  ASSERT_GT(BruteForceInside(scene).size(), 1000u);
+  for (int threads : {1, 2}) {
+    SCOPED_TRACE(threads);
+    PenetrationOptions options;
+    options.num_threads = threads;
+    ExpectSameCollidingPoints(scene, options);
   }
 }
 
