@@ -21,8 +21,8 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("program")
     parser.add_argument("--counter", action="append", default=[],
-                        help="a counter that must be > 0 in every benchmark that reports it "
-                             "(repeatable: each benchmark must report one of them)")
+                        help="a counter to check (repeatable): every benchmark must report "
+                             "one of the counters named with a value > 0")
     args = parser.parse_args()
     run = subprocess.run([args.program, "--benchmark_min_time=0.000001", "--benchmark_format=json"],
                          capture_output=True, text=True)
