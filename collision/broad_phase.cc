@@ -6,6 +6,7 @@
 #include <numeric>
 
 #include "collision/simd4.h"
+#include "mesh/group_by_key.h"
 
 namespace tetcosim {
 namespace {
@@ -102,35 +103,22 @@ void BroadPhase::Find(std::span<const BroadPhaseBox> boxes) {
   });
   const Strips strips = MakeStrips(boxes, num_in, strip_axis);
   // each strip's boxes in sweep order (a box in every strip it reaches
-  // into; one strip, the common case of a few bodies: the boxes left in),
-  // by coordinate
-  const bool cut = strips.count > 1;
-  strip_offset_.assign(strips.count + 1, 0);
-  strip_object_.clear();
-  if (!cut) {
-    for (int o : sweep_order_) {
-      if (!left_out(o)) strip_object_.push_back(o);
-    }
-    strip_offset_[1] = static_cast<int>(strip_object_.size());
-  } else {
-    for (int o : sweep_order_) {
-      if (left_out(o)) continue;
-      for (int s = strips.Of(boxes[o].lo[strip_axis]); s <= strips.Of(boxes[o].hi[strip_axis]);
-           ++s) {
-        ++strip_offset_[s + 1];
-      }
-    }
-    std::partial_sum(strip_offset_.begin(), strip_offset_.end(), strip_offset_.begin());
-    strip_object_.resize(strip_offset_[strips.count]);
-    strip_fill_.assign(strip_offset_.begin(), strip_offset_.end() - 1);
-    for (int o : sweep_order_) {
-      if (left_out(o)) continue;
-      for (int s = strips.Of(boxes[o].lo[strip_axis]); s <= strips.Of(boxes[o].hi[strip_axis]);
-           ++s) {
-        strip_object_[strip_fill_[s]++] = o;
-      }
-    }
-  }
+  // into), by coordinate
+  const bool cut = strips.count > 1;  // (one strip, the common case of a few bodies)
+  GroupByKey(
+      strips.count,
+      [&](auto&& emit) {
+        for (int o : sweep_order_) {
+          if (left_out(o)) continue;
+          if (!cut) {
+            emit(0, o);
+            continue;
+          }
+          const int last = strips.Of(boxes[o].hi[strip_axis]);
+          for (int s = strips.Of(boxes[o].lo[strip_axis]); s <= last; ++s) emit(s, o);
+        }
+      },
+      strip_offset_, strip_object_);
   const int num_entries = static_cast<int>(strip_object_.size());
   for (int k = 0; k < 3; ++k) {
     ResizePadded(sweep_lo_[k], num_entries);

@@ -15,8 +15,8 @@
 // tested against the boxes of the strips it is in, about as wide as it is,
 // not against a slab across the whole pile (in a pile about as wide as
 // long, a number that stays flat as the pile grows, where the slab's grows
-// as the square root of the pile's size). Deterministic: partners in the order found, which depends
-// only on the boxes and flags.
+// as the square root of the pile's size). Deterministic: partners in the
+// order found, which depends only on the boxes and flags.
 
 #include <Eigen/Core>
 #include <algorithm>
@@ -91,7 +91,6 @@ class BroadPhase {
 
   std::vector<int> sweep_order_;                   // #objects, by lo on the sweep axis
   std::vector<int> strip_offset_;                  // #strips + 1: each strip's entries
-  std::vector<int> strip_fill_;                    // #strips: next place in its entries
   std::vector<int> strip_object_;                  // per entry: its object, strip by strip
   std::vector<double> sweep_lo_[3], sweep_hi_[3];  // per entry: its object's box (padded)
   std::vector<double> extent_, centre_;            // scratch: the boxes' extents and centres across

@@ -30,8 +30,9 @@ inline std::map<std::tuple<int, int, int>, int> BruteForceInside(const TestScene
   const int num_objects = static_cast<int>(scene.objects.size());
   std::vector<Eigen::Vector3d> lo(num_objects), hi(num_objects);
   for (int o = 0; o < num_objects; ++o) {
-    lo[o] = scene.objects[o].positions->colwise().minCoeff().transpose();
-    hi[o] = scene.objects[o].positions->colwise().maxCoeff().transpose();
+    const PositionBounds bounds = PositionBounds::Of(*scene.objects[o].positions);
+    lo[o] = bounds.lo;
+    hi[o] = bounds.hi;
     const Eigen::Vector3d margin = Eigen::Vector3d::Constant(1e-6 * (hi[o] - lo[o]).maxCoeff());
     lo[o] -= margin;
     hi[o] += margin;

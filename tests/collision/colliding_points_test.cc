@@ -122,20 +122,13 @@ TEST(CollidingPoints, RowsAlongEachAxisMatchBruteForce) {
 // objects); the same colliding points as brute force, on one thread and
 // two.
 TEST(CollidingPoints, PileInStripsMatchesBruteForce) {
-  std::mt19937 rng(13);
-  std::uniform_real_distribution<double> jitter(-0.003, 0.003);
-  const TetMesh sphere = TetMesh::Build(MakeShape("sphere:size=0.02:res=0"));
-  TestScene scene;
+  const TestScene scene = testing::SphereLayer(24, 13);
   std::vector<BroadPhaseBox> boxes;
-  for (int i = 0; i < 24; ++i) {
-    for (int j = 0; j < 24; ++j) {
-      const Eigen::Vector3d at(0.03 * i + jitter(rng), 0.03 * j + jitter(rng), jitter(rng));
-      const int o = scene.Add(sphere, Pose(at, 100 * jitter(rng)), /*rigid=*/(i + j) % 5 == 0);
-      const PositionBounds bounds = PositionBounds::Of(*scene.positions[o]);
-      boxes.push_back({bounds.lo, bounds.hi, scene.objects[o].rigid, false});
-    }
+  for (const CollisionObject& object : scene.objects) {
+    const PositionBounds bounds = PositionBounds::Of(*object.positions);
+    boxes.push_back({bounds.lo, bounds.hi, object.rigid, object.self_collision});
   }
-  BroadPhase broad_phase;  // (as the solver's sees the pile)
+  BroadPhase broad_phase;  // (as the solver's sees the layer)
   broad_phase.Find(boxes);
   ASSERT_GE(broad_phase.num_strips(), 8);
   ASSERT_GT(BruteForceInside(scene).size(), 1000u);

@@ -98,6 +98,24 @@ inline TestScene CrowdedScene(int trial) {
   return scene;
 }
 
+// A layer of side x side paper spheres (radius 2 cm, 20 tetrahedra) 3 cm
+// apart, each overlapping its neighbours, jittered by up to 3 mm and turned
+// about z (seeded), one in five rigid. At 24 x 24 (576 objects) the broad
+// phase cuts it into strips (from 512).
+inline TestScene SphereLayer(int side, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> jitter(-0.003, 0.003);
+  const TetMesh sphere = TetMesh::Build(MakeShape("sphere:size=0.02:res=0"));
+  TestScene scene;
+  for (int i = 0; i < side; ++i) {
+    for (int j = 0; j < side; ++j) {
+      const Eigen::Vector3d at(0.03 * i + jitter(rng), 0.03 * j + jitter(rng), jitter(rng));
+      scene.Add(sphere, Pose(at, 100 * jitter(rng)), /*rigid=*/(i + j) % 5 == 0);
+    }
+  }
+  return scene;
+}
+
 // The same results bit for bit (what: the run compared, for messages).
 inline void ExpectSameResults(const std::vector<PenetrationResult>& expected,
                               const std::vector<PenetrationResult>& actual,
