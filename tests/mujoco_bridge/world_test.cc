@@ -138,7 +138,14 @@ TEST(SceneLoading, BadScenesNameTheLine) {
                 .find("back.xml: the time step is -0.001 s (<option timestep>)"),
             std::string::npos);
   EXPECT_NE(ErrorOf(dir.Write("xml.xml", "<mujoco>\n<worldbody>\n</mujoco>"))
-                .find("xml.xml:2: not well-formed XML"),
+                .find("xml.xml:2: not well-formed XML: a closing tag does not match the element "
+                      "it closes (in <worldbody>); mend the file"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf(dir.Write("comment.xml", "<mujoco>\n<!-- a note\n</mujoco>"))
+                .find("comment.xml:2: not well-formed XML: a comment is not closed with -->"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf(dir.Write("empty.xml", ""))
+                .find("empty.xml: not well-formed XML: the file holds no element"),
             std::string::npos);
   EXPECT_NE(ErrorOf((dir.path() / "none.xml").string()).find("cannot open"), std::string::npos);
   EXPECT_NE(ErrorOf(dir.path().string()).find("is a folder, not a scene file"), std::string::npos);
