@@ -225,6 +225,32 @@ std::string SkinXml(const DeformableBody& body, const Eigen::Vector4d& rgba,
   return xml.str();
 }
 
+// What the scene names among MuJoCo's objects of `type` (body `body`'s
+// geoms only, when body >= 0), for an error that names one that is not
+// there: "the named bodies: 'a', 'b' and 'c'" (the first kMaxNames and how
+// many more), or "no named body".
+std::string NamesOf(const mjModel* m, mjtObj type, int body = -1) {
+  constexpr int kMaxNames = 12;
+  const bool bodies = type == mjOBJ_BODY;
+  const int count = bodies ? m->nbody : m->ngeom;
+  std::vector<const char*> names;
+  for (int id = 0; id < count; ++id) {
+    if (body >= 0 && m->geom_bodyid[id] != body) continue;
+    const char* name = mj_id2name(m, type, id);
+    if (name != nullptr && *name != '\0') names.push_back(name);
+  }
+  if (names.empty()) return bodies ? "no named body" : "no named geom";
+  std::string list = bodies ? "the named bodies: " : "the named geoms: ";
+  const int shown = std::min(static_cast<int>(names.size()), kMaxNames);
+  const int more = static_cast<int>(names.size()) - shown;
+  for (int i = 0; i < shown; ++i) {
+    if (i > 0) list.append(i + 1 == shown && more == 0 ? " and " : ", ");
+    list.append("'").append(names[i]).append("'");
+  }
+  if (more > 0) list.append(" and ").append(std::to_string(more)).append(" more");
+  return list;
+}
+
 // MuJoCo's error on one line, its lines trimmed and joined by "; " (it
 // puts where the error is, "Element 'geom', line 4", on a line of its own,
 // which then read as a separate message after ours)
@@ -462,7 +488,9 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
   for (const RigidTetSpec& spec : scene.rigidtets) {
     int body = mj_name2id(m, mjOBJ_BODY, spec.body.c_str());
     if (body < 0) {
-      ThrowAt(scene_path, spec.line, "<rigidtet>: no MuJoCo body named '" + spec.body + "'");
+      ThrowAt(scene_path, spec.line,
+              "<rigidtet>: no MuJoCo body named '" + spec.body + "'; the scene has " +
+                  NamesOf(m, mjOBJ_BODY));
     }
     auto proxy = std::make_unique<Proxy>();
     proxy->body = body;
@@ -470,10 +498,13 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
     Eigen::Isometry3d X_BM = spec.pose;
     if (!spec.geom.empty()) {
       int geom = mj_name2id(m, mjOBJ_GEOM, spec.geom.c_str());
-      if (geom < 0) ThrowAt(scene_path, spec.line, "<rigidtet>: no geom named '" + spec.geom + "'");
-      if (m->geom_bodyid[geom] != body) {
+      if (geom < 0 || m->geom_bodyid[geom] != body) {
         ThrowAt(scene_path, spec.line,
-                "<rigidtet>: geom '" + spec.geom + "' does not belong to body '" + spec.body + "'");
+                "<rigidtet>: " +
+                    (geom < 0
+                         ? "no geom named '" + spec.geom + "'"
+                         : "geom '" + spec.geom + "' does not belong to body '" + spec.body + "'") +
+                    "; body '" + spec.body + "' has " + NamesOf(m, mjOBJ_GEOM, body));
       }
       raw = GeomMesh(m, geom, spec.resolution, spec.line, scene_path);
       Eigen::Isometry3d X_BG = Eigen::Isometry3d::Identity();
@@ -507,7 +538,9 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
     int index = world->DeformableIndex(spec.tetbody);
     int body = mj_name2id(m, mjOBJ_BODY, spec.body.c_str());
     if (body < 0) {
-      ThrowAt(scene_path, spec.line, "<attach>: no MuJoCo body named '" + spec.body + "'");
+      ThrowAt(scene_path, spec.line,
+              "<attach>: no MuJoCo body named '" + spec.body + "'; the scene has " +
+                  NamesOf(m, mjOBJ_BODY));
     }
     if (world->attach_body_[index] >= 0 && world->attach_body_[index] != body) {
       ThrowAt(scene_path, spec.line,

@@ -81,12 +81,22 @@ TEST(SceneLoading, BadScenesNameTheLine) {
       {"<tetbody name=\"a\" shape=\"sphere\" size=\"0.1\" vel=\"0 1e200 0\"/>\n",
        "scene.xml:6: <tetbody>: vel = 1e+200 m/s is faster than light"},
       {"<rigidtet body=\"nobody\" geom=\"g\"/>\n",
-       "scene.xml:6: <rigidtet>: no MuJoCo body named 'nobody'"},
+       "scene.xml:6: <rigidtet>: no MuJoCo body named 'nobody'; the scene has the named bodies: "
+       "'world' and 'b'"},
+      {"<rigidtet body=\"b\" geom=\"h\"/>\n",
+       "scene.xml:6: <rigidtet>: no geom named 'h'; body 'b' has the named geoms: 'g'"},
+      {"<rigidtet body=\"world\" geom=\"g\"/>\n",
+       "scene.xml:6: <rigidtet>: geom 'g' does not belong to body 'world'; body 'world' has no "
+       "named geom"},
       {"<contact method=\"nearest\"/>\n",
        "scene.xml:6: <contact>: method must be consistent or closest"},
       {"<tetbody name=\"a\" shape=\"sphere\" size=\"0.1\"/>\n<attach tetbody=\"zz\" body=\"b\" "
        "vertices=\"0\"/>\n",
        "scene.xml:7: <attach>: no tetbody named 'zz'"},
+      {"<tetbody name=\"a\" shape=\"sphere\" size=\"0.1\"/>\n<attach tetbody=\"a\" body=\"zz\" "
+       "vertices=\"0\"/>\n",
+       "scene.xml:7: <attach>: no MuJoCo body named 'zz'; the scene has the named bodies: 'world' "
+       "and 'b'"},
       // written but blank is not left out (it gave the default)
       {"<tetbody name=\"a\" shape=\"sphere\" size=\"0.1\" damping=\" \"/>\n",
        "scene.xml:6: <tetbody>: damping takes 1 to 2 numbers, got 0; give a value or leave the "
@@ -108,6 +118,19 @@ TEST(SceneLoading, BadScenesNameTheLine) {
     EXPECT_NE(message.find(c.expected), std::string::npos)
         << "got: " << message << "\nexpected: " << c.expected;
   }
+  // a long list of names is cut after twelve (the world and 14 bodies)
+  std::string many = "<mujoco>\n<worldbody>\n";
+  for (int i = 0; i < 14; ++i) {
+    many += "<body name=\"b" + std::to_string(i) + "\"><geom size=\".1\"/></body>\n";
+  }
+  many +=
+      "</worldbody>\n<deformable>\n<rigidtet body=\"b14\" geom=\"g\"/>\n</deformable>\n</mujoco>\n";
+  EXPECT_NE(
+      ErrorOf(dir.Write("many.xml", many))
+          .find("many.xml:19: <rigidtet>: no MuJoCo body named 'b14'; the scene has the named "
+                "bodies: 'world', 'b0', 'b1', 'b2', 'b3', 'b4', 'b5', 'b6', 'b7', 'b8', 'b9', "
+                "'b10' and 3 more"),
+      std::string::npos);
   // an element without attributes says so (it listed none after "allowed:")
   EXPECT_NE(ErrorOf(dir.Write("bare.xml",
                               "<mujoco>\n<deformable young=\"1e5\">\n</deformable>\n"
