@@ -92,7 +92,7 @@ TEST(SceneLoading, BadScenesNameTheLine) {
        "scene.xml:6: <contact>: method must be consistent or closest"},
       {"<tetbody name=\"a\" shape=\"sphere\" size=\"0.1\"/>\n<attach tetbody=\"zz\" body=\"b\" "
        "vertices=\"0\"/>\n",
-       "scene.xml:7: <attach>: no tetbody named 'zz'"},
+       "scene.xml:7: <attach>: no tetbody named 'zz'; the tetbodies: 'a'"},
       {"<tetbody name=\"a\" shape=\"sphere\" size=\"0.1\"/>\n<attach tetbody=\"a\" body=\"zz\" "
        "vertices=\"0\"/>\n",
        "scene.xml:7: <attach>: no MuJoCo body named 'zz'; the scene has the named bodies: 'world' "
