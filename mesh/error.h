@@ -5,6 +5,7 @@
 // is reported as a status value instead. The message is complete and meant
 // for a person: where (file, line, element), what is wrong, what to do.
 
+#include <span>
 #include <stdexcept>
 #include <string>
 #include <string_view>
@@ -22,5 +23,10 @@ std::string Where(std::string_view file, long line = 0);
 
 // Throws Error("file:line: message").
 [[noreturn]] void ThrowAt(std::string_view file, long line, const std::string& message);
+
+// The names a message offers in place of one that is not there, quoted:
+// "'a', 'b' and 'c'", the first `max_shown` and how many more ("'a', 'b'
+// and 7 more"); empty for no names.
+std::string QuotedList(std::span<const std::string_view> names, int max_shown = 12);
 
 }  // namespace tetcosim

@@ -292,18 +292,11 @@ class SceneParser {
       }
       for (const AttachSpec& attach : scene.attachments) {
         if (!names.count(attach.tetbody)) {
-          std::string known;  // (the first twelve in name order)
-          int shown = 0;
-          for (const std::string& name : names) {
-            if (shown++ == 12) {
-              known.append(" and ").append(std::to_string(names.size() - 12)).append(" more");
-              break;
-            }
-            known.append(known.empty() ? "" : ", ").append("'").append(name).append("'");
-          }
+          const std::vector<std::string_view> known(names.begin(), names.end());
           ThrowAt(path_, attach.line,
                   "<attach>: no tetbody named '" + attach.tetbody + "'; " +
-                      (names.empty() ? "the scene has no <tetbody>" : "the tetbodies: " + known));
+                      (names.empty() ? "the scene has no <tetbody>"
+                                     : "the tetbodies: " + QuotedList(known)));
         }
       }
     }

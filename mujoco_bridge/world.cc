@@ -227,28 +227,17 @@ std::string SkinXml(const DeformableBody& body, const Eigen::Vector4d& rgba,
 
 // What the scene names among MuJoCo's objects of `type` (body `body`'s
 // geoms only, when body >= 0), for an error that names one that is not
-// there: "the named bodies: 'a', 'b' and 'c'" (the first kMaxNames and how
-// many more), or "no named body".
+// there: "the named bodies: 'a', 'b' and 'c'", or "no named body".
 std::string NamesOf(const mjModel* m, mjtObj type, int body = -1) {
-  constexpr int kMaxNames = 12;
   const bool bodies = type == mjOBJ_BODY;
-  const int count = bodies ? m->nbody : m->ngeom;
-  std::vector<const char*> names;
-  for (int id = 0; id < count; ++id) {
+  std::vector<std::string_view> names;
+  for (int id = 0; id < (bodies ? m->nbody : m->ngeom); ++id) {
     if (body >= 0 && m->geom_bodyid[id] != body) continue;
     const char* name = mj_id2name(m, type, id);
-    if (name != nullptr && *name != '\0') names.push_back(name);
+    if (name != nullptr && *name != '\0') names.emplace_back(name);
   }
   if (names.empty()) return bodies ? "no named body" : "no named geom";
-  std::string list = bodies ? "the named bodies: " : "the named geoms: ";
-  const int shown = std::min(static_cast<int>(names.size()), kMaxNames);
-  const int more = static_cast<int>(names.size()) - shown;
-  for (int i = 0; i < shown; ++i) {
-    if (i > 0) list.append(i + 1 == shown && more == 0 ? " and " : ", ");
-    list.append("'").append(names[i]).append("'");
-  }
-  if (more > 0) list.append(" and ").append(std::to_string(more)).append(" more");
-  return list;
+  return (bodies ? "the named bodies: " : "the named geoms: ") + QuotedList(names);
 }
 
 // MuJoCo's error on one line, its lines trimmed and joined by "; " (it

@@ -5,6 +5,9 @@
 
 #include <filesystem>
 #include <fstream>
+#include <span>
+#include <string_view>
+#include <vector>
 
 #include "mesh/error.h"
 #include "mesh/mesh_io.h"
@@ -215,6 +218,20 @@ TEST_F(BadInput, TetGenProblems) {
   EXPECT_NE(ErrorOf(node).find("dimension 2 is not 3"), std::string::npos);
   std::string missing = Write("m.node", "4 3 0 0\n0 0 0 0\n1 1 0 0\n2 0 1 0\n3 0 0 1\n");
   EXPECT_NE(ErrorOf(missing).find("m.ele: cannot open"), std::string::npos);
+}
+
+// The names an error offers in place of a missing one: every name, in
+// order, joined as a sentence, up to the limit, then how many are left out.
+TEST(QuotedList, ListsUpToTheLimitAndCountsTheRest) {
+  const std::vector<std::string_view> names = {"a", "b", "c", "d", "e"};
+  EXPECT_EQ(QuotedList({}), "");
+  EXPECT_EQ(QuotedList(std::span(names).first(1)), "'a'");
+  EXPECT_EQ(QuotedList(std::span(names).first(2)), "'a' and 'b'");
+  EXPECT_EQ(QuotedList(names), "'a', 'b', 'c', 'd' and 'e'");
+  EXPECT_EQ(QuotedList(names, 5), "'a', 'b', 'c', 'd' and 'e'");
+  EXPECT_EQ(QuotedList(names, 4), "'a', 'b', 'c', 'd' and 1 more");
+  EXPECT_EQ(QuotedList(names, 2), "'a', 'b' and 3 more");
+  EXPECT_EQ(QuotedList(names, 0), "'a' and 4 more");  // (at least one shown)
 }
 
 }  // namespace
