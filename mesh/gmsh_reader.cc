@@ -167,8 +167,14 @@ class GmshReader {
         long num_tags = scan_.Binary<std::int32_t>("an element block tag count");
         int nodes = GmshNodesPerElement(type);
         if (nodes == 0) scan_.Fail("unknown element type " + std::to_string(type));
-        if (follow <= 0 || follow > count - read || num_tags < 0 || num_tags > 64) {
-          scan_.Fail("corrupt element block header");
+        if (follow <= 0 || follow > count - read) {
+          scan_.Fail("an element block holds " + std::to_string(follow) + " elements, where 1 to " +
+                     std::to_string(count - read) + " remain of the " + std::to_string(count) +
+                     " the section declares; the file is damaged");
+        }
+        if (num_tags < 0 || num_tags > 64) {
+          scan_.Fail("an element block has " + std::to_string(num_tags) +
+                     " tags an element, outside 0 to 64; the file is damaged");
         }
         scan_.RequireBytes(static_cast<size_t>(follow) * 4 * (1 + num_tags + nodes),
                            "an element block");
@@ -273,7 +279,14 @@ class GmshReader {
       Int4("an entity tag");
       long parametric = Int4("the parametric flag");
       long count = Size("the number of nodes in a block");
-      if (dim < 0 || dim > 3 || total + count > num_nodes) scan_.Fail("corrupt node block header");
+      if (dim < 0 || dim > 3) {
+        scan_.Fail("a node block's entity dimension is " + std::to_string(dim) +
+                   ", outside 0 to 3; the file is damaged");
+      }
+      if (total + count > num_nodes) {
+        scan_.Fail("the node blocks hold more than the " + std::to_string(num_nodes) +
+                   " nodes the section declares; the file is damaged");
+      }
       scan_.CheckCount(count, binary_ ? 32 : 8, "nodes");
       int extra = parametric ? static_cast<int>(dim) : 0;
       std::vector<long> tags(static_cast<size_t>(count));
@@ -308,7 +321,10 @@ class GmshReader {
       long entity = Int4("an entity tag");
       long type = Int4("an element type");
       long count = Size("the number of elements in a block");
-      if (total + count > num_elements) scan_.Fail("corrupt element block header");
+      if (total + count > num_elements) {
+        scan_.Fail("the element blocks hold more than the " + std::to_string(num_elements) +
+                   " elements the section declares; the file is damaged");
+      }
       int nodes = GmshNodesPerElement(type);
       if (nodes == 0) scan_.Fail("unknown element type " + std::to_string(type));
       auto physical_it = volume_physical_.find(entity);

@@ -24,8 +24,13 @@ RawMesh ReadTetGen(const std::string& node_path, std::string_view node_content,
   long num_attributes = nodes.Int("the number of point attributes");
   long num_markers = nodes.Int("the number of boundary markers");
   if (dim != 3) nodes.Fail("dimension " + std::to_string(dim) + " is not 3");
-  if (num_attributes < 0 || num_markers < 0 || num_markers > 1) {
-    nodes.Fail("bad attribute or boundary-marker count in the header");
+  if (num_attributes < 0) {
+    nodes.Fail("the number of point attributes is " + std::to_string(num_attributes) +
+               "; give 0 or more");
+  }
+  if (num_markers < 0 || num_markers > 1) {
+    nodes.Fail("the number of boundary markers is " + std::to_string(num_markers) +
+               "; TetGen writes 0 or 1");
   }
   nodes.CheckCount(num_points, 8, "points");
   raw.positions.resize(num_points, 3);

@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 
 #include "mesh/error.h"
 #include "mesh/mesh_io.h"
@@ -217,7 +218,14 @@ RawMesh ReadVtkLegacy(const std::string& path, std::string_view content) {
         scan.Token("the connectivity data type");
         for (long i = 0; i < size; ++i) connectivity.push_back(scan.Int("a cell vertex"));
         for (size_t i = 1; i < offsets.size(); ++i) {
-          if (offsets[i] < offsets[i - 1] || offsets[i] > size) scan.Fail("bad OFFSETS");
+          if (offsets[i] < offsets[i - 1] || offsets[i] > size) {
+            scan.Fail("OFFSETS value " + std::to_string(i) + " (" + std::to_string(offsets[i]) +
+                      ") is " +
+                      (offsets[i] > size
+                           ? "beyond the " + std::to_string(size) + " CONNECTIVITY entries"
+                           : "below the one before it (" + std::to_string(offsets[i - 1]) + ")") +
+                      "; offsets must rise from 0 to the connectivity size");
+          }
         }
         if (!offsets.empty() && (offsets.front() != 0 || offsets.back() != size)) {
           scan.Fail("OFFSETS must start at 0 and end at the connectivity size");
@@ -233,7 +241,11 @@ RawMesh ReadVtkLegacy(const std::string& path, std::string_view content) {
         }
         for (long c = 0; c < n; ++c) {
           if (c > 0) count = scan.Int("a cell vertex count");
-          if (count < 0 || count > size) scan.Fail("bad cell vertex count");
+          if (count < 0 || count > size) {
+            scan.Fail("cell " + std::to_string(c) + " has a vertex count of " +
+                      std::to_string(count) + ", outside 0 to the CELLS size " +
+                      std::to_string(size) + "; a tetrahedron's line is 4 and its 4 point indices");
+          }
           cell_lines.push_back(scan.line());
           for (long k = 0; k < count; ++k) connectivity.push_back(scan.Int("a cell vertex"));
           offsets.push_back(static_cast<long>(connectivity.size()));
@@ -256,7 +268,13 @@ RawMesh ReadVtkLegacy(const std::string& path, std::string_view content) {
         scan.Token("an array name");
         long components = scan.Int("the number of components");
         long tuples = scan.Int("the number of tuples");
-        if (components < 0 || tuples < 0) scan.Fail("negative field array size");
+        if (components < 0 || tuples < 0 ||
+            (tuples > 0 && components > std::numeric_limits<long>::max() / tuples)) {
+          scan.Fail("a FIELD array of " + std::to_string(components) + " components and " +
+                    std::to_string(tuples) +
+                    " tuples: each must be 0 or more, and their product a count of values; the "
+                    "file is damaged");
+        }
         scan.CheckCount(components * tuples, 2, "field values");
         scan.Token("the array data type");
         for (long i = 0; i < components * tuples; ++i) scan.Token("a field value");

@@ -3,6 +3,8 @@
 
 #include <gtest/gtest.h>
 
+#include <cstdint>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <span>
@@ -84,6 +86,30 @@ TEST_F(BadInput, TruncatedBinaryFiles) {
           << file << " cut at " << cut << ": " << message;
     }
   }
+}
+
+// MSH 2.2 binary: an element block's header (type, count, tags, as 32-bit
+// integers after the section's count line) contradicting the section
+TEST_F(BadInput, BinaryElementBlockHeader) {
+  const std::string content = ReadFileContents(kData + "/sphere_msh22_binary.msh");
+  const size_t section = content.find("$Elements\n");
+  ASSERT_NE(section, std::string::npos);
+  const size_t block = content.find('\n', section + 10) + 1;  // (after the count line)
+  const int declared = std::stoi(content.substr(section + 10));
+  auto with = [&](int field, std::int32_t value) {
+    std::string changed = content;
+    std::memcpy(changed.data() + block + 4 * field, &value, 4);
+    return changed;
+  };
+  std::string message = ErrorOf(Write("f.msh", with(1, declared + 1)));
+  EXPECT_NE(message.find("an element block holds " + std::to_string(declared + 1) +
+                         " elements, where 1 to " + std::to_string(declared) + " remain"),
+            std::string::npos)
+      << message;
+  message = ErrorOf(Write("t.msh", with(2, 100)));
+  EXPECT_NE(message.find("an element block has 100 tags an element, outside 0 to 64"),
+            std::string::npos)
+      << message;
 }
 
 TEST_F(BadInput, UnknownFormat) {
@@ -210,12 +236,65 @@ TEST_F(BadInput, VtkProblems) {
   EXPECT_NE(message.find("CELL_TYPES lists 2 cells but CELLS has 1"), std::string::npos) << message;
   message = ErrorOf(Write("h.vtk", "hello\n"));
   EXPECT_NE(message.find("h.vtk:1: not a legacy VTK file"), std::string::npos) << message;
+  // a cell's vertex count beyond the list (versions 2 to 4.2)
+  const std::string points = "POINTS 4 double\n0 0 0 1 0 0 0 1 0 0 0 1\n";
+  message = ErrorOf(Write("c.vtk", header + points + "CELLS 1 5\n9 0 1 2 3\nCELL_TYPES 1\n10\n"));
+  EXPECT_NE(message.find("c.vtk:8: cell 0 has a vertex count of 9, outside 0 to the CELLS size 5"),
+            std::string::npos)
+      << message;
+  // a FIELD array whose size overflows (it wrapped to no values, and the
+  // file read on)
+  message = ErrorOf(Write("f.vtk", header + "FIELD FieldData 1\nt 4294967296 4294967296 double\n" +
+                                       points + "CELLS 1 5\n4 0 1 2 3\nCELL_TYPES 1\n10\n"));
+  EXPECT_NE(message.find("f.vtk:6: a FIELD array of 4294967296 components and 4294967296 tuples"),
+            std::string::npos)
+      << message;
+  // offsets that fall, or pass the connectivity (version 5.1)
+  const std::string header51 = "# vtk DataFile Version 5.1\nx\nASCII\nDATASET UNSTRUCTURED_GRID\n";
+  message = ErrorOf(Write("o.vtk", header51 + points +
+                                       "CELLS 3 4\nOFFSETS vtktypeint64\n0 4 2\n"
+                                       "CONNECTIVITY vtktypeint64\n0 1 2 3\nCELL_TYPES 1\n10\n"));
+  EXPECT_NE(message.find("OFFSETS value 2 (2) is below the one before it (4)"), std::string::npos)
+      << message;
+  message = ErrorOf(Write("p.vtk", header51 + points +
+                                       "CELLS 2 4\nOFFSETS vtktypeint64\n0 6\n"
+                                       "CONNECTIVITY vtktypeint64\n0 1 2 3\nCELL_TYPES 1\n10\n"));
+  EXPECT_NE(message.find("OFFSETS value 1 (6) is beyond the 4 CONNECTIVITY entries"),
+            std::string::npos)
+      << message;
+}
+
+// MSH 4.1 blocks whose headers contradict their sections
+TEST_F(BadInput, MshBlockHeaders) {
+  const std::string head = "$MeshFormat\n4.1 0 8\n$EndMeshFormat\n$Nodes\n";
+  const std::string nodes = "1\n2\n3\n4\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n$EndNodes\n";
+  const std::string elements = "$Elements\n1 1 1 1\n3 1 4 1\n1 1 2 3 4\n$EndElements\n";
+  ASSERT_EQ(ErrorOf(Write("ok.msh", head + "1 4 1 4\n3 1 0 4\n" + nodes + elements)), "");
+  EXPECT_NE(ErrorOf(Write("d.msh", head + "1 4 1 4\n5 1 0 4\n" + nodes + elements))
+                .find("d.msh:6: a node block's entity dimension is 5, outside 0 to 3"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf(Write("n.msh", head + "1 3 1 4\n3 1 0 4\n" + nodes + elements))
+                .find("n.msh:6: the node blocks hold more than the 3 nodes the section declares"),
+            std::string::npos);
+  const std::string more = "$Elements\n1 0 1 1\n3 1 4 1\n1 1 2 3 4\n$EndElements\n";
+  EXPECT_NE(ErrorOf(Write("e.msh", head + "1 4 1 4\n3 1 0 4\n" + nodes + more))
+                .find("e.msh:18: the element blocks hold more than the 0 elements the section "
+                      "declares"),
+            std::string::npos);
 }
 
 TEST_F(BadInput, TetGenProblems) {
   std::string node = Write("d.node", "4 2 0 0\n");
   Write("d.ele", "0 4 0\n");
   EXPECT_NE(ErrorOf(node).find("dimension 2 is not 3"), std::string::npos);
+  Write("a.ele", "0 4 0\n");
+  Write("k.ele", "0 4 0\n");
+  EXPECT_NE(ErrorOf(Write("a.node", "4 3 -1 0\n"))
+                .find("a.node:1: the number of point attributes is -1; give 0 or more"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf(Write("k.node", "4 3 0 2\n"))
+                .find("k.node:1: the number of boundary markers is 2; TetGen writes 0 or 1"),
+            std::string::npos);
   std::string missing = Write("m.node", "4 3 0 0\n0 0 0 0\n1 1 0 0\n2 0 1 0\n3 0 0 1\n");
   EXPECT_NE(ErrorOf(missing).find("m.ele: cannot open"), std::string::npos);
 }
