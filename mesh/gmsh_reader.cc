@@ -283,7 +283,7 @@ class GmshReader {
         scan_.Fail("a node block's entity dimension is " + std::to_string(dim) +
                    ", outside 0 to 3; the file is damaged");
       }
-      if (total + count > num_nodes) {
+      if (count > num_nodes - total) {  // (total <= num_nodes: no overflow)
         scan_.Fail("the node blocks hold more than the " + std::to_string(num_nodes) +
                    " nodes the section declares; the file is damaged");
       }
@@ -321,7 +321,7 @@ class GmshReader {
       long entity = Int4("an entity tag");
       long type = Int4("an element type");
       long count = Size("the number of elements in a block");
-      if (total + count > num_elements) {
+      if (count > num_elements - total) {  // (total <= num_elements: no overflow)
         scan_.Fail("the element blocks hold more than the " + std::to_string(num_elements) +
                    " elements the section declares; the file is damaged");
       }

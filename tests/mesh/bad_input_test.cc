@@ -276,6 +276,12 @@ TEST_F(BadInput, MshBlockHeaders) {
   EXPECT_NE(ErrorOf(Write("n.msh", head + "1 3 1 4\n3 1 0 4\n" + nodes + elements))
                 .find("n.msh:6: the node blocks hold more than the 3 nodes the section declares"),
             std::string::npos);
+  // (a sum past the largest long, which overflowed in the check)
+  const std::string huge = "9223372036854775807";
+  EXPECT_NE(ErrorOf(Write("h.msh", head + "2 " + huge + " 1 4\n3 1 0 1\n1\n0 0 0\n3 1 0 " + huge +
+                                       "\n" + nodes + elements))
+                .find("h.msh:9: the node blocks hold more than the " + huge + " nodes"),
+            std::string::npos);
   const std::string more = "$Elements\n1 0 1 1\n3 1 4 1\n1 1 2 3 4\n$EndElements\n";
   EXPECT_NE(ErrorOf(Write("e.msh", head + "1 4 1 4\n3 1 0 4\n" + nodes + more))
                 .find("e.msh:18: the element blocks hold more than the 0 elements the section "
