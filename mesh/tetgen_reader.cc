@@ -5,6 +5,8 @@
 //        "<index> <n1> <n2> <n3> <n4> [more nodes] [attribute]" per tet.
 // '#' starts a comment. Indices are 0- or 1-based, following the first point.
 
+#include <cmath>
+#include <cstdio>
 #include <unordered_map>
 
 #include "mesh/error.h"
@@ -28,6 +30,7 @@ RawMesh ReadTetGen(const std::string& node_path, std::string_view node_content,
     nodes.Fail("the number of point attributes is " + std::to_string(num_attributes) +
                "; give 0 or more");
   }
+  nodes.CheckCount(num_attributes, 2, "point attributes");  // (each point's, at least)
   if (num_markers < 0 || num_markers > 1) {
     nodes.Fail("the number of boundary markers is " + std::to_string(num_markers) +
                "; TetGen writes 0 or 1");
@@ -57,6 +60,7 @@ RawMesh ReadTetGen(const std::string& node_path, std::string_view node_content,
     elements.Fail("nodes per tetrahedron is " + std::to_string(nodes_per_tet) + ", not 4 or 10");
   }
   if (num_region < 0) elements.Fail("the number of region attributes is negative");
+  elements.CheckCount(num_region, 2, "region attributes");  // (each tetrahedron's, at least)
   raw.tets.resize(num_tets, 4);
   raw.element_ids.resize(static_cast<size_t>(num_tets));
   raw.element_lines.resize(static_cast<size_t>(num_tets));
@@ -77,7 +81,15 @@ RawMesh ReadTetGen(const std::string& node_path, std::string_view node_content,
     }
     for (long a = 0; a < num_region; ++a) {
       double attribute = elements.Double("a region attribute");
-      if (a == 0) raw.tet_tags[static_cast<size_t>(t)] = static_cast<int>(attribute);
+      if (a > 0) continue;
+      // (the tag: the first attribute, a region number, truncated to an int)
+      if (!(std::abs(attribute) < 2147483648.0)) {
+        char value[32];
+        std::snprintf(value, sizeof(value), "%g", attribute);
+        elements.Fail("tetrahedron " + std::to_string(id) + "'s region attribute is " + value +
+                      "; a region number must be finite and within the range of an int");
+      }
+      raw.tet_tags[static_cast<size_t>(t)] = static_cast<int>(attribute);
     }
   }
   return raw;

@@ -298,6 +298,20 @@ TEST_F(BadInput, TetGenProblems) {
   EXPECT_NE(ErrorOf(Write("a.node", "4 3 -1 0\n"))
                 .find("a.node:1: the number of point attributes is -1; give 0 or more"),
             std::string::npos);
+  // counts past the file, and region numbers beyond an int (the cast was
+  // undefined)
+  Write("h.ele", "0 4 0\n");
+  EXPECT_NE(ErrorOf(Write("h.node", "4 3 9223372036854775807 1\n0 0 0 0\n"))
+                .find("h.node:1: the file claims 9223372036854775807 point attributes"),
+            std::string::npos);
+  const std::string tet_nodes = "4 3 0 0\n0 0 0 0\n1 1 0 0\n2 0 1 0\n3 0 0 1\n";
+  Write("r.ele", "1 4 1\n0 0 1 2 3 1e300\n");
+  EXPECT_NE(ErrorOf(Write("r.node", tet_nodes))
+                .find("r.ele:2: tetrahedron 0's region attribute is 1e+300; a region number must "
+                      "be finite"),
+            std::string::npos);
+  Write("s.ele", "1 4 1\n0 0 1 2 3 nan\n");
+  EXPECT_NE(ErrorOf(Write("s.node", tet_nodes)).find("region attribute is nan"), std::string::npos);
   EXPECT_NE(ErrorOf(Write("k.node", "4 3 0 2\n"))
                 .find("k.node:1: the number of boundary markers is 2; TetGen writes 0 or 1"),
             std::string::npos);
