@@ -6,10 +6,9 @@
 
 #include <cstdio>
 #include <filesystem>
-#include <string_view>
-#include <vector>
 
 #include "mesh/error.h"
+#include "mujoco_bridge/model_names.h"
 
 namespace tetcosim {
 
@@ -43,15 +42,8 @@ Renderer::Renderer(World& world, int width, int height, const std::string& camer
   mjModel* m = world.mutable_mj_model();
   const int camera_id = camera.empty() ? -1 : mj_name2id(m, mjOBJ_CAMERA, camera.c_str());
   if (!camera.empty() && camera_id < 0) {
-    std::vector<std::string_view> names;
-    for (int id = 0; id < m->ncam; ++id) {
-      const char* name = mj_id2name(m, mjOBJ_CAMERA, id);
-      if (name != nullptr && *name != '\0') names.emplace_back(name);
-    }
-    throw Error("no camera named '" + camera + "' in " + world.scene().path + "; " +
-                (names.empty() ? "the scene has no named camera"
-                               : "the scene has the named cameras: " + QuotedList(names)) +
-                " (leave the camera out for the free view)");
+    throw Error("no camera named '" + camera + "' in " + world.scene().path + "; the scene has " +
+                NamesOf(m, mjOBJ_CAMERA) + " (leave the camera out for the free view)");
   }
   // the offscreen buffer must hold the image
   m->vis.global.offwidth = std::max(m->vis.global.offwidth, width);

@@ -19,6 +19,7 @@
 #include "mesh/generators.h"
 #include "mesh/mesh_io.h"
 #include "mesh/same_bits.h"
+#include "mujoco_bridge/model_names.h"
 
 namespace tetcosim {
 namespace {
@@ -223,21 +224,6 @@ std::string SkinXml(const DeformableBody& body, const Eigen::Vector4d& rgba,
   for (size_t i = 0; i < surface_vertices.size(); ++i) xml << "1 ";
   xml << "\"/>\n</skin>\n";
   return xml.str();
-}
-
-// What the scene names among MuJoCo's objects of `type` (body `body`'s
-// geoms only, when body >= 0), for an error that names one that is not
-// there: "the named bodies: 'a', 'b' and 'c'", or "no named body".
-std::string NamesOf(const mjModel* m, mjtObj type, int body = -1) {
-  const bool bodies = type == mjOBJ_BODY;
-  std::vector<std::string_view> names;
-  for (int id = 0; id < (bodies ? m->nbody : m->ngeom); ++id) {
-    if (body >= 0 && m->geom_bodyid[id] != body) continue;
-    const char* name = mj_id2name(m, type, id);
-    if (name != nullptr && *name != '\0') names.emplace_back(name);
-  }
-  if (names.empty()) return bodies ? "no named body" : "no named geom";
-  return (bodies ? "the named bodies: " : "the named geoms: ") + QuotedList(names);
 }
 
 // MuJoCo's error on one line, its lines trimmed and joined by "; " (it
