@@ -127,7 +127,7 @@ void AddInfoCommand(CLI::App& app) {
   CLI::App* info = app.add_subcommand(
       "info", "Summarise a tetrahedral mesh (counts, volume, bounds, quality) or a scene (.xml)");
   info->add_option("file", options->file,
-                   "Mesh file (.msh, .node/.ele, .vtk) or shape spec such as "
+                   "Mesh file (.msh, .node/.ele, .vtk, .vtu) or shape spec such as "
                    "sphere:size=0.1:res=1")
       ->required();
   info->add_flag("--json", options->json, "Print JSON instead of text");

@@ -15,12 +15,15 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   std::string_view content(reinterpret_cast<const char*>(data + 1), size - 1);
   try {
     tetcosim::RawMesh raw;
-    switch (data[0] % 3) {
+    switch (data[0] % 4) {
       case 0:
         raw = tetcosim::ReadGmsh("fuzz.msh", content);
         break;
       case 1:
         raw = tetcosim::ReadVtkLegacy("fuzz.vtk", content);
+        break;
+      case 3:
+        raw = tetcosim::ReadVtu("fuzz.vtu", content);
         break;
       default: {
         // .node and .ele separated by the first '@'

@@ -37,15 +37,14 @@ RawMesh ReadRawMesh(const std::string& path) {
   std::string content = ReadFileContents(path);
   if (ext == ".msh" || content.rfind("$MeshFormat", 0) == 0) return ReadGmsh(path, content);
   if (ext == ".vtk" || content.rfind("# vtk DataFile", 0) == 0) return ReadVtkLegacy(path, content);
-  if (ext == ".vtu") {
-    ThrowAt(path, 0,
-            "reading .vtu is not supported; tetcosim writes .vtu for ParaView but "
-            "reads Gmsh .msh, TetGen .node/.ele and legacy .vtk");
+  if (ext == ".vtu" || content.rfind("<VTKFile", 0) == 0 ||
+      (content.rfind("<?xml", 0) == 0 && content.substr(0, 200).find("<VTKFile") != content.npos)) {
+    return ReadVtu(path, content);
   }
   ThrowAt(path, 0,
           "unknown mesh format '" + ext +
               "'; tetcosim reads Gmsh .msh (2.2, 4.1), "
-              "TetGen .node/.ele and legacy ASCII .vtk");
+              "TetGen .node/.ele, legacy ASCII .vtk and VTK XML .vtu");
 }
 
 TetMesh ReadTetMesh(const std::string& path, const TetMeshOptions& options) {

@@ -6,6 +6,9 @@
 //   Gmsh MSH 2.2 and 4.1, ASCII and binary (.msh)
 //   TetGen .node + .ele, 0- or 1-based, with attributes and boundary markers
 //   legacy VTK unstructured grid, ASCII, versions 2 to 5.1 (.vtk; cell type 10)
+//   VTK XML unstructured grid (.vtu; cell type 10): ascii, binary and appended
+//   (raw or base64) arrays, UInt32 or UInt64 headers, either byte order,
+//   uncompressed or zlib-compressed (vtkZLibDataCompressor)
 // Writers:
 //   VTK XML unstructured grid (.vtu) and legacy VTK (.vtk), ASCII, with
 //   optional per-point and per-cell data arrays; readable by ParaView and
@@ -20,9 +23,9 @@
 
 namespace tetcosim {
 
-enum class MeshFormat { kGmsh, kTetGen, kVtkLegacy };
+enum class MeshFormat { kGmsh, kTetGen, kVtkLegacy, kVtkXml };
 
-// Reads any supported format, chosen by extension (.msh, .node/.ele, .vtk)
+// Reads any supported format, chosen by extension (.msh, .node/.ele, .vtk, .vtu)
 // or, failing that, by the file's first bytes. Throws Error for a missing,
 // unreadable, truncated or malformed file, naming the file and line.
 RawMesh ReadRawMesh(const std::string& path);
@@ -37,6 +40,7 @@ TetMesh LoadMesh(const std::string& file_or_spec, const TetMeshOptions& options 
 // The individual readers, on content already in memory (path is for messages).
 RawMesh ReadGmsh(const std::string& path, std::string_view content);
 RawMesh ReadVtkLegacy(const std::string& path, std::string_view content);
+RawMesh ReadVtu(const std::string& path, std::string_view content);
 // node_path and ele_path name the two TetGen files.
 RawMesh ReadTetGen(const std::string& node_path, std::string_view node_content,
                    const std::string& ele_path, std::string_view ele_content);

@@ -264,6 +264,123 @@ TEST_F(BadInput, VtkProblems) {
       << message;
 }
 
+// a valid ascii .vtu of one tetrahedron; parts replaceable
+std::string Vtu(const std::string& root_attributes, const std::string& points,
+                const std::string& connectivity, const std::string& offsets = "4",
+                const std::string& types = "10",
+                const std::string& piece = "4\" NumberOfCells=\"1") {
+  return "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\"" + root_attributes +
+         ">\n<UnstructuredGrid>\n<Piece NumberOfPoints=\"" + piece +
+         "\">\n<Points>\n<DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"ascii\">\n" +
+         points + "\n</DataArray>\n</Points>\n<Cells>\n" +
+         "<DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">\n" + connectivity +
+         "\n</DataArray>\n<DataArray type=\"Int64\" Name=\"offsets\" format=\"ascii\">" + offsets +
+         "</DataArray>\n<DataArray type=\"UInt8\" Name=\"types\" format=\"ascii\">" + types +
+         "</DataArray>\n</Cells>\n</Piece>\n</UnstructuredGrid>\n</VTKFile>\n";
+}
+const std::string kVtuPoints = "0 0 0\n1 0 0\n0 1 0\n0 0 1";
+
+TEST_F(BadInput, VtuProblems) {
+  ASSERT_EQ(ErrorOf(Write("ok.vtu", Vtu("", kVtuPoints, "0 1 2 3"))), "");
+  // not XML, not an unstructured grid, a compressor it cannot unpack
+  std::string message = ErrorOf(Write("x.vtu", "<VTKFile type=\"UnstructuredGrid\">\n<Piece>\n"));
+  EXPECT_NE(message.find("x.vtu:2: not well-formed XML: an element is not closed"),
+            std::string::npos)
+      << message;
+  message = ErrorOf(Write("p.vtu", "<VTKFile type=\"PolyData\"><PolyData/></VTKFile>"));
+  EXPECT_NE(message.find("p.vtu:1: a VTK XML file of type 'PolyData' holds no tetrahedra"),
+            std::string::npos)
+      << message;
+  message =
+      ErrorOf(Write("z.vtu", Vtu(" compressor=\"vtkLZ4DataCompressor\"", kVtuPoints, "0 1 2 3")));
+  EXPECT_NE(message.find("z.vtu:2: compressor 'vtkLZ4DataCompressor' is not supported"),
+            std::string::npos)
+      << message;
+  // ascii arrays: too few values, a bad number, a bad count
+  message = ErrorOf(Write("f.vtu", Vtu("", "0 0 0\n1 0 0\n0 1 0\n0 0", "0 1 2 3")));
+  EXPECT_NE(message.find("f.vtu:11: DataArray '' holds 11 values; its piece needs 12"),
+            std::string::npos)
+      << message;
+  message = ErrorOf(Write("n.vtu", Vtu("", "0 0 0\n1 0 0\n0 1.5x 0\n0 0 1", "0 1 2 3")));
+  EXPECT_NE(message.find("n.vtu:9: DataArray '': '1.5x' is not a number"), std::string::npos)
+      << message;
+  message = ErrorOf(Write("c.vtu", Vtu("", kVtuPoints, "0 1 2 3", "4", "10", "-4")));
+  EXPECT_NE(message.find("c.vtu:4: NumberOfPoints=\"-4\" is not a count"), std::string::npos)
+      << message;
+  // cells: out-of-range point, falling offsets, a tetrahedron of 3 points,
+  // indices that are not whole numbers
+  message = ErrorOf(Write("r.vtu", Vtu("", kVtuPoints, "0 1\n2 9")));
+  EXPECT_NE(message.find("r.vtu:15: cell 0 refers to point 9, outside its piece's 4 points"),
+            std::string::npos)
+      << message;
+  message = ErrorOf(
+      Write("o.vtu", Vtu("", kVtuPoints, "0 1 2 3 0 1 2", "4 3", "10 5", "4\" NumberOfCells=\"2")));
+  EXPECT_NE(message.find("o.vtu:17: DataArray 'offsets' value 1 (3) is below the one before it"),
+            std::string::npos)
+      << message;
+  message = ErrorOf(Write("t.vtu", Vtu("", kVtuPoints, "0 1 2", "3")));
+  EXPECT_NE(message.find("t.vtu:15: cell 0 has type 10 (tetrahedron) but 3 points"),
+            std::string::npos)
+      << message;
+  std::string floats = Vtu("", kVtuPoints, "0 1 2 3");
+  floats.replace(floats.find("Int64\" Name=\"connectivity"), 5, "Float32");
+  message = ErrorOf(Write("i.vtu", floats));
+  EXPECT_NE(message.find("i.vtu:14: DataArray 'connectivity' holds Float32 values"),
+            std::string::npos)
+      << message;
+  // an appended array with no appended data
+  std::string appended = Vtu("", kVtuPoints, "0 1 2 3");
+  appended.replace(appended.find("format=\"ascii\">\n0 1 2 3"), 24,
+                   "format=\"appended\" offset=\"0\">");
+  message = ErrorOf(Write("a.vtu", appended));
+  EXPECT_NE(message.find("a.vtu:14: DataArray 'connectivity' is appended, but the file has no "
+                         "<AppendedData>"),
+            std::string::npos)
+      << message;
+}
+
+// binary .vtu files written by VTK (scripts/make-test-data), damaged
+TEST_F(BadInput, VtuBinaryDamage) {
+  const std::string raw = ReadFileContents(kData + "/sphere_vtk_appended_raw_zlib.vtu");
+  const size_t data = raw.find('_', raw.find("<AppendedData")) + 1;
+  ASSERT_EQ(ErrorOf(Write("ok.vtu", raw)), "");
+  // cut inside the data, closed again: the blocks end early
+  std::string message =
+      ErrorOf(Write("cut.vtu", raw.substr(0, data + 600) + "\n</AppendedData>\n</VTKFile>\n"));
+  EXPECT_NE(message.find("cut.vtu:9: DataArray 'Points''s binary data ends before its compressed "
+                         "blocks"),
+            std::string::npos)
+      << message;
+  EXPECT_NE(message.find("the file is cut short or damaged"), std::string::npos) << message;
+  // cut, never closed
+  message = ErrorOf(Write("open.vtu", raw.substr(0, data + 600)));
+  EXPECT_NE(message.find("<AppendedData> must hold '_' and then the data"), std::string::npos)
+      << message;
+  // the points' compressed bytes changed (after their header of four UInt64)
+  std::string changed = raw;
+  for (size_t i = data + 40; i < data + 48; ++i) changed[i] = static_cast<char>(~changed[i]);
+  message = ErrorOf(Write("zlib.vtu", changed));
+  EXPECT_NE(message.find("zlib.vtu:9: DataArray 'Points''s compressed block 0 does not unpack"),
+            std::string::npos)
+      << message;
+  // a block count no file could hold (the header's first UInt64, little-endian)
+  std::string blocks = raw;
+  blocks[data + 7] = 0x7F;
+  message = ErrorOf(Write("blocks.vtu", blocks));
+  EXPECT_NE(message.find("blocks.vtu:9: DataArray 'Points' has a compression header of"),
+            std::string::npos)
+      << message;
+  // a character that is not base64 in an inline array
+  std::string base64 = ReadFileContents(kData + "/sphere_vtk_binary.vtu");
+  const size_t text = base64.find('>', base64.find("Name=\"connectivity\"")) + 1;
+  base64[base64.find_first_not_of(" \n", text) + 5] = '*';
+  message = ErrorOf(Write("b64.vtu", base64));
+  EXPECT_NE(
+      message.find("DataArray 'connectivity''s binary data holds '*', not a base64 character"),
+      std::string::npos)
+      << message;
+}
+
 // MSH 4.1 blocks whose headers contradict their sections
 TEST_F(BadInput, MshBlockHeaders) {
   const std::string head = "$MeshFormat\n4.1 0 8\n$EndMeshFormat\n$Nodes\n";

@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <fstream>
 #include <sstream>
+#include <string_view>
 
 #include "mesh/mesh_io.h"
 #include "mesh/text_reader.h"
@@ -62,6 +63,60 @@ TEST(Readers, GmshVariantsOfOneMeshAreIdentical) {
     EXPECT_LT((other.positions - reference.positions).cwiseAbs().maxCoeff(), 1e-16);
     EXPECT_EQ(other.tets, reference.tets);
   }
+}
+
+// VTK XML files of the same mesh as written by VTK itself and by meshio, in
+// every encoding (scripts/make-test-data): the binary ones hold the very
+// doubles meshio read from sphere_msh41_ascii.msh, meshio's ascii one 12
+// significant digits
+TEST(Readers, VtuEncodingsOfOneMeshAreIdentical) {
+  RawMesh reference = ReadRawMesh(kData + "/sphere_msh41_ascii.msh");
+  for (const char* file : {"sphere_vtk_appended_raw_zlib.vtu", "sphere_vtk_appended_base64.vtu",
+                           "sphere_vtk_binary.vtu", "sphere_vtk_binary_zlib_be.vtu",
+                           "sphere_meshio_mixed_zlib.vtu", "sphere_meshio_ascii.vtu"}) {
+    SCOPED_TRACE(file);
+    RawMesh other = ReadRawMesh(kData + "/" + file);
+    ASSERT_EQ(other.positions.rows(), reference.positions.rows());
+    if (std::string_view(file).find("ascii") != std::string_view::npos) {
+      EXPECT_LT((other.positions - reference.positions).cwiseAbs().maxCoeff(), 1e-12 * 0.05);
+    } else {
+      EXPECT_EQ(other.positions, reference.positions);
+    }
+    EXPECT_EQ(other.tets, reference.tets);
+  }
+  // the triangles and lines of the whole Gmsh mesh are left out, and the
+  // tetrahedra keep their cell numbers
+  RawMesh mixed = ReadRawMesh(kData + "/sphere_meshio_mixed_zlib.vtu");
+  ASSERT_FALSE(mixed.element_ids.empty());
+  EXPECT_GT(mixed.element_ids.front(), 0);
+}
+
+TEST(Readers, VtuPiecesAreJoinedAndOtherCellsSkipped) {
+  // two pieces of one tetrahedron each (the second with a triangle before
+  // it), ascii, no <?xml?> line, and no extension to tell the format
+  auto piece = [](const std::string& x, const std::string& connectivity, const std::string& offsets,
+                  const std::string& types, int cells) {
+    return "<Piece NumberOfPoints=\"4\" NumberOfCells=\"" + std::to_string(cells) +
+           "\">\n<Points><DataArray type=\"Float32\" NumberOfComponents=\"3\">\n" + x +
+           " 0 0  1 0 0  0 1 0  0 0 1\n</DataArray></Points>\n<Cells>\n"
+           "<DataArray type=\"Int32\" Name=\"connectivity\">" +
+           connectivity + "</DataArray>\n<DataArray type=\"Int32\" Name=\"offsets\">" + offsets +
+           "</DataArray>\n<DataArray type=\"UInt8\" Name=\"types\">" + types +
+           "</DataArray>\n</Cells>\n</Piece>\n";
+  };
+  const std::string vtu =
+      "<VTKFile type=\"UnstructuredGrid\" version=\"0.1\">\n<UnstructuredGrid>\n" +
+      piece("0", "0 1 2 3", "4", "10", 1) + piece("2", "0 1 2\n1 0 2 3", "3 7", "5 10", 2) +
+      "</UnstructuredGrid>\n</VTKFile>\n";
+  RawMesh raw = ReadVtu("pieces", vtu);
+  ASSERT_EQ(raw.positions.rows(), 8);
+  EXPECT_EQ(raw.positions(4, 0), 2.0);
+  ASSERT_EQ(raw.tets.rows(), 2);
+  EXPECT_EQ(raw.tets.row(0), Eigen::RowVector4i(0, 1, 2, 3));
+  EXPECT_EQ(raw.tets.row(1), Eigen::RowVector4i(5, 4, 6, 7));
+  EXPECT_EQ(raw.element_ids, (std::vector<long>{0, 2}));
+  EXPECT_EQ(raw.element_lines, (std::vector<long>{8, 19}));
+  EXPECT_EQ(raw.node_lines[5], 15);
 }
 
 TEST(Readers, PhysicalTagsAreKept) {

@@ -34,6 +34,21 @@ TEST(VtkWriter, LegacyRoundTripIsExact) {
   }
 }
 
+TEST(VtkWriter, VtuRoundTripIsExact) {
+  for (const char* spec : {"sphere:size=0.1:res=1", "torus:size=0.1,0.03:res=2"}) {
+    SCOPED_TRACE(spec);
+    TetMesh mesh = TetMesh::Build(MakeShape(spec));
+    std::string path = TempPath("roundtrip.vtu");
+    VtkData data;
+    data.point_data.push_back({"velocity", 3, std::vector<double>(3 * mesh.num_vertices(), 0.5)});
+    WriteVtk(path, mesh.positions(), mesh.tets(), data);
+    TetMesh back = ReadTetMesh(path);
+    EXPECT_EQ(back.positions(), mesh.positions());
+    EXPECT_EQ(back.tets(), mesh.tets());
+    std::filesystem::remove(path);
+  }
+}
+
 TEST(VtkWriter, VtuHasTheDeclaredCounts) {
   TetMesh mesh = TetMesh::Build(MakeShape("sphere:size=0.1:res=1"));
   std::string path = TempPath("mesh.vtu");
