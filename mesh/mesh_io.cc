@@ -44,7 +44,7 @@ RawMesh ReadRawMesh(const std::string& path) {
   ThrowAt(path, 0,
           "unknown mesh format '" + ext +
               "'; tetcosim reads Gmsh .msh (2.2, 4.1), "
-              "TetGen .node/.ele, legacy ASCII .vtk and VTK XML .vtu");
+              "TetGen .node/.ele, legacy .vtk and VTK XML .vtu");
 }
 
 TetMesh ReadTetMesh(const std::string& path, const TetMeshOptions& options) {

@@ -5,7 +5,8 @@
 // Readers (all return an unvalidated RawMesh; TetMesh::Build validates):
 //   Gmsh MSH 2.2 and 4.1, ASCII and binary (.msh)
 //   TetGen .node + .ele, 0- or 1-based, with attributes and boundary markers
-//   legacy VTK unstructured grid, ASCII, versions 2 to 5.1 (.vtk; cell type 10)
+//   legacy VTK unstructured grid, ASCII or BINARY, versions 2 to 5.1 (.vtk;
+//   cell type 10)
 //   VTK XML unstructured grid (.vtu; cell type 10): ascii, binary and appended
 //   (raw or base64) arrays, UInt32 or UInt64 headers, either byte order,
 //   uncompressed or zlib-compressed (vtkZLibDataCompressor)

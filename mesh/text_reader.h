@@ -53,6 +53,11 @@ class Scanner {
     return value;
   }
   void RequireBytes(size_t count, std::string_view what);
+  // Moves past `count` bytes (binary data not needed); Fail()s past the end.
+  void SkipBytes(size_t count) {
+    RequireBytes(count, "binary data");
+    pos_ += count;
+  }
   // Fail()s unless `count` items of at least `bytes_each` bytes can still
   // follow: a header that claims more than the file holds is truncated or
   // corrupt, and must not make the reader allocate for it.

@@ -1,12 +1,17 @@
-// Legacy VTK (ASCII, "# vtk DataFile Version 2.0" to "5.1") reading and
+// Legacy VTK (ASCII or BINARY, "# vtk DataFile Version 2.0" to "5.1") reading and
 // VTK writing (XML .vtu or legacy), reference: "VTK File Formats" in the VTK
 // User's Guide. Only cell type 10 (VTK_TETRA) is kept on reading.
 
+#include <algorithm>
+#include <array>
 #include <charconv>
+#include <cstdint>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <utility>
 
 #include "mesh/error.h"
 #include "mesh/mesh_io.h"
@@ -123,6 +128,140 @@ std::string LegacyVtk(const Positions& positions, const Tets& tets, const VtkDat
   return out;
 }
 
+// The values of a legacy VTK array: text tokens in an ASCII file; in a
+// BINARY one, big-endian values of the array's type, from just after the
+// newline of the line that names the array.
+class LegacyValues {
+ public:
+  LegacyValues(Scanner& scan, bool binary) : scan_(scan), binary_(binary) {
+    // (errors in a binary file give the byte: its lines are not counted)
+    scan.set_binary(binary);
+  }
+
+  bool binary() const { return binary_; }
+
+  // Begins an array of `count` values of `type`: in a binary file, checks
+  // the type and that the bytes are there, and moves to them.
+  void Begin(std::string_view type, long count, std::string_view what) {
+    if (!binary_) return;
+    size_ = 0;
+    for (const auto& [name, size, kind] : kTypes) {
+      if (type == name) {
+        size_ = size;
+        kind_ = kind;
+      }
+    }
+    if (size_ == 0) {
+      scan_.Fail("the data type '" + std::string(type.substr(0, 40)) + "' of the " +
+                 std::string(what) +
+                 " cannot be read from a binary file; tetcosim reads char, short, int, long, "
+                 "float, double and vtktypeint64 (signed or unsigned); save the file as ASCII "
+                 "or .vtu");
+    }
+    scan_.SkipLine();
+    scan_.CheckCount(count, static_cast<size_t>(size_), what);
+  }
+
+  // Passes over an array (of a FIELD).
+  void Skip(std::string_view type, long count, std::string_view what) {
+    if (!binary_) {
+      for (long i = 0; i < count; ++i) scan_.Token("a field value");
+      return;
+    }
+    Begin(type, count, what);
+    scan_.SkipBytes(static_cast<size_t>(count) * static_cast<size_t>(size_));
+  }
+
+  // A token already read that is the next value (ASCII).
+  void Unread(std::string_view token) { unread_ = token; }
+
+  long Int(std::string_view what) {
+    if (!binary_) {
+      if (unread_.empty()) return scan_.Int(what);
+      long value = 0;
+      const std::string_view token = std::exchange(unread_, {});
+      auto [end, ec] = std::from_chars(token.data(), token.data() + token.size(), value);
+      if (ec != std::errc() || end != token.data() + token.size()) {
+        scan_.Fail("expected " + std::string(what) + " (an integer), found '" +
+                   std::string(token.substr(0, 40)) + "'");
+      }
+      return value;
+    }
+    if (kind_ == Kind::kFloat) {
+      scan_.Fail("expected " + std::string(what) +
+                 ", an integer, but the array holds floating-point values");
+    }
+    const std::uint64_t bits = NextBits(what);
+    if (kind_ == Kind::kUnsigned) {
+      // (past the largest long: -1, a count and an index no mesh has)
+      return bits > static_cast<std::uint64_t>(std::numeric_limits<long>::max())
+                 ? -1
+                 : static_cast<long>(bits);
+    }
+    const int unused = 64 - 8 * size_;  // (sign-extended from the value's size)
+    return static_cast<long>(static_cast<std::int64_t>(bits << unused) >> unused);
+  }
+
+  double Double(std::string_view what) {
+    if (!binary_) return scan_.Double(what);
+    const std::uint64_t bits = NextBits(what);
+    if (kind_ != Kind::kFloat) {
+      if (kind_ == Kind::kUnsigned) return static_cast<double>(bits);
+      const int unused = 64 - 8 * size_;
+      return static_cast<double>(static_cast<std::int64_t>(bits << unused) >> unused);
+    }
+    if (size_ == 4) {
+      float value;
+      const auto word = static_cast<std::uint32_t>(bits);
+      std::memcpy(&value, &word, sizeof(value));
+      return value;
+    }
+    double value;
+    std::memcpy(&value, &bits, sizeof(value));
+    return value;
+  }
+
+  // The line of the next value (0 in a binary file, whose errors give the byte).
+  long line() const { return binary_ ? 0 : scan_.line(); }
+
+ private:
+  enum class Kind { kSigned, kUnsigned, kFloat };
+  struct Type {
+    std::string_view name;
+    int size;
+    Kind kind;
+  };
+  static constexpr std::array<Type, 14> kTypes = {{{"char", 1, Kind::kSigned},
+                                                   {"unsigned_char", 1, Kind::kUnsigned},
+                                                   {"short", 2, Kind::kSigned},
+                                                   {"unsigned_short", 2, Kind::kUnsigned},
+                                                   {"int", 4, Kind::kSigned},
+                                                   {"unsigned_int", 4, Kind::kUnsigned},
+                                                   {"long", 8, Kind::kSigned},
+                                                   {"unsigned_long", 8, Kind::kUnsigned},
+                                                   {"vtktypeint32", 4, Kind::kSigned},
+                                                   {"vtktypeuint32", 4, Kind::kUnsigned},
+                                                   {"vtktypeint64", 8, Kind::kSigned},
+                                                   {"vtktypeuint64", 8, Kind::kUnsigned},
+                                                   {"float", 4, Kind::kFloat},
+                                                   {"double", 8, Kind::kFloat}}};
+
+  // the next value's bytes, most significant first, as an integer
+  std::uint64_t NextBits(std::string_view what) {
+    std::uint64_t bits = 0;
+    for (int i = 0; i < size_; ++i) {
+      bits = bits << 8 | scan_.Binary<std::uint8_t>(what);
+    }
+    return bits;
+  }
+
+  Scanner& scan_;
+  bool binary_;
+  int size_ = 0;
+  Kind kind_ = Kind::kSigned;
+  std::string_view unread_;
+};
+
 }  // namespace
 
 void WriteFileAtomically(const std::string& path, std::string_view content) {
@@ -163,16 +302,20 @@ RawMesh ReadVtkLegacy(const std::string& path, std::string_view content) {
   // header: "# vtk DataFile Version x.y", a title line, ASCII|BINARY, DATASET
   size_t first_line_end = content.find('\n');
   std::string_view header = content.substr(0, first_line_end);
-  if (header.rfind("# vtk DataFile Version", 0) != 0) {
+  constexpr std::string_view kMagic = "# vtk DataFile Version";
+  if (header.rfind(kMagic, 0) != 0) {
     scan.Fail("not a legacy VTK file: the first line must be '# vtk DataFile Version x.y'");
   }
+  // (5.1 lists cells as OFFSETS and CONNECTIVITY; a binary file must say so
+  // by its version, as its cell list cannot be looked at as text)
+  const bool version5 = header.find(" 5.", kMagic.size()) != std::string_view::npos;
   scan.SkipLine();
   scan.SkipLine();  // title
   std::string_view encoding = scan.Token("ASCII or BINARY");
-  if (encoding == "BINARY") {
-    scan.Fail("binary legacy VTK is not supported; write it as ASCII or as .vtu");
+  if (encoding != "ASCII" && encoding != "BINARY") {
+    scan.Fail("expected ASCII or BINARY, found '" + std::string(encoding.substr(0, 40)) + "'");
   }
-  if (encoding != "ASCII") scan.Fail("expected ASCII, found '" + std::string(encoding) + "'");
+  LegacyValues values(scan, encoding == "BINARY");
   scan.Expect("DATASET");
   std::string_view dataset = scan.Token("the dataset type");
   if (dataset != "UNSTRUCTURED_GRID") {
@@ -191,14 +334,14 @@ RawMesh ReadVtkLegacy(const std::string& path, std::string_view content) {
     std::string_view keyword = scan.Token("a section keyword");
     if (keyword == "POINTS") {
       long n = scan.Int("the number of points");
-      scan.CheckCount(n, 6, "points");
-      scan.Token("the point data type");
+      scan.CheckCount(n, values.binary() ? 12 : 6, "points");
+      values.Begin(scan.Token("the point data type"), 3 * n, "point coordinates");
       raw.positions.resize(n, 3);
       raw.node_lines.resize(static_cast<size_t>(n));
       for (long v = 0; v < n; ++v) {
         for (int k = 0; k < 3; ++k) {
-          if (k == 0) raw.node_lines[static_cast<size_t>(v)] = scan.line();
-          raw.positions(v, k) = scan.Double("a point coordinate");
+          if (k == 0) raw.node_lines[static_cast<size_t>(v)] = values.line();
+          raw.positions(v, k) = values.Double("a point coordinate");
         }
       }
       have_points = true;
@@ -208,15 +351,21 @@ RawMesh ReadVtkLegacy(const std::string& path, std::string_view content) {
       scan.CheckCount(n, 2, "cells");
       scan.CheckCount(size, 2, "cell list entries");
       offsets.assign(1, 0);
-      std::string_view next = scan.Token("the cell list");
-      if (next == "OFFSETS") {
+      bool offsets_form = version5;
+      if (!values.binary()) {  // (ASCII: told by the first word)
+        const std::string_view first = scan.Token("the cell list");
+        offsets_form = first == "OFFSETS";
+        if (!offsets_form) values.Unread(first);
+      }
+      if (offsets_form) {
         // version 5.1: OFFSETS <type> n values, CONNECTIVITY <type> size values
-        scan.Token("the offsets data type");
+        if (values.binary()) scan.Expect("OFFSETS");
+        values.Begin(scan.Token("the offsets data type"), n, "offsets");
         offsets.clear();
-        for (long i = 0; i < n; ++i) offsets.push_back(scan.Int("an offset"));
+        for (long i = 0; i < n; ++i) offsets.push_back(values.Int("an offset"));
         scan.Expect("CONNECTIVITY");
-        scan.Token("the connectivity data type");
-        for (long i = 0; i < size; ++i) connectivity.push_back(scan.Int("a cell vertex"));
+        values.Begin(scan.Token("the connectivity data type"), size, "connectivity");
+        for (long i = 0; i < size; ++i) connectivity.push_back(values.Int("a cell vertex"));
         for (size_t i = 1; i < offsets.size(); ++i) {
           if (offsets[i] < offsets[i - 1] || offsets[i] > size) {
             scan.Fail("OFFSETS value " + std::to_string(i) + " (" + std::to_string(offsets[i]) +
@@ -232,25 +381,24 @@ RawMesh ReadVtkLegacy(const std::string& path, std::string_view content) {
         }
         cell_lines.assign(offsets.empty() ? 0 : offsets.size() - 1, 0);
       } else {
-        // versions 2 to 4.2: n lines "k i0 ... ik-1"
-        long count = -1;
-        auto [end, ec] = std::from_chars(next.data(), next.data() + next.size(), count);
-        if (ec != std::errc() || end != next.data() + next.size()) {
-          scan.Fail("expected a cell vertex count, found '" + std::string(next.substr(0, 40)) +
-                    "'");
-        }
+        // versions 2 to 4.2: n lines "k i0 ... ik-1" (binary: int, as VTK writes them)
+        values.Begin("int", size, "the cell list");
+        long listed = 0;  // entries read, counts included
         for (long c = 0; c < n; ++c) {
-          if (c > 0) count = scan.Int("a cell vertex count");
-          if (count < 0 || count > size) {
+          const long count = values.Int("a cell vertex count");
+          if (count < 0 || count > size - listed - 1) {
             scan.Fail("cell " + std::to_string(c) + " has a vertex count of " +
-                      std::to_string(count) + ", outside 0 to the CELLS size " +
-                      std::to_string(size) + "; a tetrahedron's line is 4 and its 4 point indices");
+                      std::to_string(count) + ", outside 0 to the " +
+                      std::to_string(std::max(0L, size - listed - 1)) + " entries the CELLS size " +
+                      std::to_string(size) +
+                      " leaves it; a tetrahedron's line is 4 and its 4 point indices");
           }
-          cell_lines.push_back(scan.line());
-          for (long k = 0; k < count; ++k) connectivity.push_back(scan.Int("a cell vertex"));
+          cell_lines.push_back(values.line());
+          for (long k = 0; k < count; ++k) connectivity.push_back(values.Int("a cell vertex"));
+          listed += count + 1;
           offsets.push_back(static_cast<long>(connectivity.size()));
         }
-        if (static_cast<long>(connectivity.size()) + n != size) {
+        if (listed != size) {
           scan.Fail("the CELLS size " + std::to_string(size) + " does not match the cell list");
         }
       }
@@ -258,7 +406,8 @@ RawMesh ReadVtkLegacy(const std::string& path, std::string_view content) {
     } else if (keyword == "CELL_TYPES") {
       long n = scan.Int("the number of cell types");
       scan.CheckCount(n, 2, "cell types");
-      for (long i = 0; i < n; ++i) types.push_back(scan.Int("a cell type"));
+      values.Begin("int", n, "the cell types");
+      for (long i = 0; i < n; ++i) types.push_back(values.Int("a cell type"));
     } else if (keyword == "POINT_DATA" || keyword == "CELL_DATA") {
       break;  // attributes follow; the mesh is complete
     } else if (keyword == "FIELD") {
@@ -275,13 +424,14 @@ RawMesh ReadVtkLegacy(const std::string& path, std::string_view content) {
                     " tuples: each must be 0 or more, and their product a count of values; the "
                     "file is damaged");
         }
-        scan.CheckCount(components * tuples, 2, "field values");
-        scan.Token("the array data type");
-        for (long i = 0; i < components * tuples; ++i) scan.Token("a field value");
+        scan.CheckCount(components * tuples, values.binary() ? 1 : 2, "field values");
+        values.Skip(scan.Token("the array data type"), components * tuples, "field values");
       }
     } else if (keyword == "METADATA") {
+      // lines up to the first blank one (AtEnd() would pass over the blank
+      // line, and take the next section for more metadata)
       scan.SkipLine();
-      while (!scan.AtEnd() && !scan.TokenOnLine().empty()) scan.SkipLine();
+      while (!scan.TokenOnLine().empty()) scan.SkipLine();
     } else {
       scan.Fail("unexpected keyword '" + std::string(keyword.substr(0, 40)) + "'");
     }

@@ -223,23 +223,39 @@ TEST_F(BadInput, UnreferencedVerticesAreOnlyAWarning) {
 
 TEST_F(BadInput, VtkProblems) {
   const std::string header = "# vtk DataFile Version 3.0\nx\nASCII\nDATASET UNSTRUCTURED_GRID\n";
-  EXPECT_NE(ErrorOf(Write("b.vtk", "# vtk DataFile Version 3.0\nx\nBINARY\n")).find("binary"),
-            std::string::npos);
+  std::string message = ErrorOf(Write("b.vtk", "# vtk DataFile Version 3.0\nx\nBINARY\n"));
+  EXPECT_NE(message.find("b.vtk: byte 36: unexpected end of file: expected DATASET"),
+            std::string::npos)
+      << message;
+  message = ErrorOf(Write("bit.vtk",
+                          "# vtk DataFile Version 3.0\nx\nBINARY\nDATASET UNSTRUCTURED_GRID\n"
+                          "POINTS 1 bit\n" +
+                              std::string(12, '\0')));
+  EXPECT_NE(message.find("bit.vtk: byte 74: the data type 'bit' of the point coordinates cannot "
+                         "be read from a binary file"),
+            std::string::npos)
+      << message;
   EXPECT_NE(ErrorOf(Write("s.vtk",
                           "# vtk DataFile Version 3.0\nx\nASCII\nDATASET "
                           "STRUCTURED_POINTS\n"))
                 .find("not supported"),
             std::string::npos);
-  std::string message =
-      ErrorOf(Write("t.vtk", header + "POINTS 4 double\n0 0 0 1 0 0 0 1 0 0 0 "
-                                      "1\nCELLS 1 5\n4 0 1 2 3\nCELL_TYPES 2\n10\n10\n"));
+  message = ErrorOf(Write("t.vtk", header + "POINTS 4 double\n0 0 0 1 0 0 0 1 0 0 0 "
+                                            "1\nCELLS 1 5\n4 0 1 2 3\nCELL_TYPES 2\n10\n10\n"));
   EXPECT_NE(message.find("CELL_TYPES lists 2 cells but CELLS has 1"), std::string::npos) << message;
   message = ErrorOf(Write("h.vtk", "hello\n"));
   EXPECT_NE(message.find("h.vtk:1: not a legacy VTK file"), std::string::npos) << message;
   // a cell's vertex count beyond the list (versions 2 to 4.2)
   const std::string points = "POINTS 4 double\n0 0 0 1 0 0 0 1 0 0 0 1\n";
   message = ErrorOf(Write("c.vtk", header + points + "CELLS 1 5\n9 0 1 2 3\nCELL_TYPES 1\n10\n"));
-  EXPECT_NE(message.find("c.vtk:8: cell 0 has a vertex count of 9, outside 0 to the CELLS size 5"),
+  EXPECT_NE(
+      message.find("c.vtk:8: cell 0 has a vertex count of 9, outside 0 to the 4 entries the CELLS "
+                   "size 5 leaves it"),
+      std::string::npos)
+      << message;
+  // (a count within the size, but past what the cells before it leave)
+  message = ErrorOf(Write("l.vtk", header + points + "CELLS 1 4\n4 0 1 2 3\nCELL_TYPES 1\n10\n"));
+  EXPECT_NE(message.find("l.vtk:8: cell 0 has a vertex count of 4, outside 0 to the 3 entries"),
             std::string::npos)
       << message;
   // a FIELD array whose size overflows (it wrapped to no values, and the
@@ -378,6 +394,35 @@ TEST_F(BadInput, VtuBinaryDamage) {
   EXPECT_NE(
       message.find("DataArray 'connectivity''s binary data holds '*', not a base64 character"),
       std::string::npos)
+      << message;
+}
+
+// binary legacy .vtk files written by VTK (scripts/make-test-data), damaged
+TEST_F(BadInput, VtkBinaryDamage) {
+  const std::string v42 = ReadFileContents(kData + "/sphere_vtk42_binary.vtk");
+  ASSERT_EQ(ErrorOf(Write("ok.vtk", v42)), "");
+  // cut inside the points
+  std::string message = ErrorOf(Write("cut.vtk", v42.substr(0, 1000)));
+  EXPECT_NE(message.find("cut.vtk: byte 88: the file claims 186 point coordinates but has only "
+                         "912 bytes left"),
+            std::string::npos)
+      << message;
+  // the first cell's vertex count (a big-endian int after "CELLS 129 645\n")
+  std::string count = v42;
+  const size_t cells = count.find('\n', count.find("CELLS 129 645")) + 1;
+  count[cells] = 0x7F;
+  message = ErrorOf(Write("count.vtk", count));
+  EXPECT_NE(message.find("count.vtk: byte " + std::to_string(cells + 4) +
+                         ": cell 0 has a vertex count of 2130706436, outside 0 to the 644 entries"),
+            std::string::npos)
+      << message;
+  // version 5.1's connectivity said to be float
+  std::string v51 = ReadFileContents(kData + "/sphere_vtk51_binary.vtk");
+  v51.replace(v51.find("CONNECTIVITY vtktypeint64"), 25, "CONNECTIVITY double      ");
+  message = ErrorOf(Write("float.vtk", v51));
+  EXPECT_NE(message.find("expected a cell vertex, an integer, but the array holds floating-point "
+                         "values"),
+            std::string::npos)
       << message;
 }
 
