@@ -1,8 +1,9 @@
 // Gmsh MSH 2.2 and 4.1, ASCII and binary (reference: the Gmsh manual, "MSH
-// file format"). Tetrahedra (element type 4) are kept; every other element
-// type is skipped. Node tags may be non-contiguous and come in several
-// blocks; physical tags are kept per tetrahedron (MSH 2.2: the first element
-// tag; MSH 4.1: the first physical tag of the volume entity).
+// file format"). Tetrahedra (element type 4) are kept, and higher-order ones
+// (types 11, 29, 30, 31) as linear ones, from their corner nodes, which Gmsh
+// lists first; every other element type is skipped. Node tags may be non-contiguous and come in
+// several blocks; physical tags are kept per tetrahedron (MSH 2.2: the first element tag; MSH 4.1:
+// the first physical tag of the volume entity).
 
 #include <cstdint>
 #include <unordered_map>
@@ -15,6 +16,12 @@ namespace tetcosim {
 namespace {
 
 constexpr int kGmshTet = 4;
+
+// Whether a Gmsh element type is a tetrahedron: linear, or complete of order
+// 2 to 5 (10, 20, 35 and 56 nodes)
+bool IsGmshTet(long type) {
+  return type == kGmshTet || type == 11 || type == 29 || type == 30 || type == 31;
+}
 
 // number of nodes of Gmsh element types (0: unknown)
 int GmshNodesPerElement(long type) {
@@ -87,6 +94,7 @@ class GmshReader {
     }
     if (!have_nodes) scan_.Fail("the file has no $Nodes section");
     if (!have_elements) scan_.Fail("the file has no $Elements section");
+    if (num_linearized_ > 0) raw_.warnings.push_back(LinearizedTetsWarning(num_linearized_));
     raw_.tets =
         Eigen::Map<const Tets>(tets_.data(), static_cast<Eigen::Index>(tets_.size() / 4), 4);
     return std::move(raw_);
@@ -118,6 +126,12 @@ class GmshReader {
     raw_.element_ids.push_back(tag);
     raw_.element_lines.push_back(line);
     raw_.tet_tags.push_back(physical);
+  }
+  // AddTet for element type `type` (a tetrahedron's), counting the
+  // higher-order ones
+  void AddTetOfType(long type, long tag, const long* nodes, int physical, long line) {
+    num_linearized_ += type != kGmshTet;
+    AddTet(tag, nodes, physical, line);
   }
 
   long Count(std::string_view what) {
@@ -190,7 +204,7 @@ class GmshReader {
             long id = scan_.Binary<std::int32_t>("an element node");
             if (k < 4) ids[k] = id;
           }
-          if (type == kGmshTet) AddTet(tag, ids, physical, 0);
+          if (IsGmshTet(type)) AddTetOfType(type, tag, ids, physical, 0);
         }
         read += follow;
       }
@@ -200,7 +214,7 @@ class GmshReader {
         long tag = scan_.Int("an element tag");
         long line = scan_.line();
         long type = scan_.Int("an element type");
-        if (type != kGmshTet) {
+        if (!IsGmshTet(type)) {
           scan_.SkipLine();
           continue;
         }
@@ -211,11 +225,16 @@ class GmshReader {
           if (t == 0) physical = static_cast<int>(value);
         }
         long ids[4];
-        for (long& id : ids) id = scan_.Int("a node of a tetrahedron");
-        if (!scan_.TokenOnLine().empty()) {
-          scan_.Fail("element " + std::to_string(tag) + " has more than 4 nodes for a tetrahedron");
+        const int nodes = GmshNodesPerElement(type);
+        for (int k = 0; k < nodes; ++k) {
+          const long id = scan_.Int("a node of a tetrahedron");
+          if (k < 4) ids[k] = id;
         }
-        AddTet(tag, ids, physical, line);
+        if (!scan_.TokenOnLine().empty()) {
+          scan_.Fail("element " + std::to_string(tag) + " has more than the " +
+                     std::to_string(nodes) + " nodes of its type (" + std::to_string(type) + ")");
+        }
+        AddTetOfType(type, tag, ids, physical, line);
       }
     }
     scan_.Expect("$EndElements");
@@ -340,7 +359,7 @@ class GmshReader {
           long id = Size("an element node");
           if (k < 4) ids[k] = id;
         }
-        if (type == kGmshTet) AddTet(tag, ids, physical, line);
+        if (IsGmshTet(type)) AddTetOfType(type, tag, ids, physical, line);
       }
       total += count;
     }
@@ -359,6 +378,7 @@ class GmshReader {
   bool binary_ = false;
   std::vector<double> positions_;
   std::vector<int> tets_;
+  long num_linearized_ = 0;  // higher-order tetrahedra read as linear
   std::unordered_map<long, int> node_index_;
   std::unordered_map<long, int> volume_physical_;
 };

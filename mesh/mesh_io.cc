@@ -47,6 +47,13 @@ RawMesh ReadRawMesh(const std::string& path) {
               "TetGen .node/.ele, legacy .vtk and VTK XML .vtu");
 }
 
+std::string LinearizedTetsWarning(long count) {
+  return std::to_string(count) +
+         " higher-order tetrahedra were read as linear ones: their 4 corner nodes are kept and "
+         "the others left out (tetcosim's elements are linear; mesh with element order 1 to "
+         "keep the nodes)";
+}
+
 TetMesh ReadTetMesh(const std::string& path, const TetMeshOptions& options) {
   return TetMesh::Build(ReadRawMesh(path), options);
 }

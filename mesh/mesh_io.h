@@ -64,6 +64,16 @@ struct VtkData {
 void WriteVtk(const std::string& path, const Positions& positions, const Tets& tets,
               const VtkData& data = {});
 
+// The readers' warning for `count` higher-order tetrahedra (10 nodes and
+// more) read as linear ones, from their corner nodes.
+std::string LinearizedTetsWarning(long count);
+
+// The nodes of a VTK cell type that is a tetrahedron, 0 for any other type:
+// 4 for VTK_TETRA (10), 10 for VTK_QUADRATIC_TETRA (24; its corners first).
+constexpr int VtkTetNodes(long cell_type) {
+  return cell_type == 10 ? 4 : cell_type == 24 ? 10 : 0;
+}
+
 // Writes content to path through a temporary file and a rename.
 void WriteFileAtomically(const std::string& path, std::string_view content);
 

@@ -293,6 +293,7 @@ Eigen::Vector3d VertexNormal(const TetMesh& mesh, const Positions& positions, in
 
 TetMesh TetMesh::Build(RawMesh raw, const TetMeshOptions& options) {
   TetMesh mesh;
+  mesh.warnings_ = std::move(raw.warnings);
   CheckAndCompact(raw, options, mesh.warnings_);
   mesh.num_flipped_ = OrientTets(raw, options);
   if (mesh.num_flipped_ > 0) {

@@ -29,14 +29,15 @@ using Edges = Eigen::Matrix<int, Eigen::Dynamic, 2, Eigen::RowMajor>;
 // fields carry the file's own numbering so that errors can name the element
 // and line the user sees in the file.
 struct RawMesh {
-  Positions positions;              // #V x 3
-  Tets tets;                        // #T x 4, indices into positions
-  std::vector<int> tet_tags;        // #T physical tags (empty if none)
-  std::vector<long> node_ids;       // #V ids as in the file (empty: index)
-  std::vector<long> element_ids;    // #T ids as in the file (empty: index)
-  std::vector<long> element_lines;  // #T line in the file (empty: unknown)
-  std::vector<long> node_lines;     // #V line in the file (empty: unknown)
-  std::string source;               // file name or generator spec, for messages
+  Positions positions;                // #V x 3
+  Tets tets;                          // #T x 4, indices into positions
+  std::vector<int> tet_tags;          // #T physical tags (empty if none)
+  std::vector<long> node_ids;         // #V ids as in the file (empty: index)
+  std::vector<long> element_ids;      // #T ids as in the file (empty: index)
+  std::vector<long> element_lines;    // #T line in the file (empty: unknown)
+  std::vector<long> node_lines;       // #V line in the file (empty: unknown)
+  std::string source;                 // file name or generator spec, for messages
+  std::vector<std::string> warnings;  // the reader's, passed on to TetMesh::warnings()
 };
 
 struct TetMeshOptions {

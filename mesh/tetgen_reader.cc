@@ -92,6 +92,7 @@ RawMesh ReadTetGen(const std::string& node_path, std::string_view node_content,
       raw.tet_tags[static_cast<size_t>(t)] = static_cast<int>(attribute);
     }
   }
+  if (nodes_per_tet == 10 && num_tets > 0) raw.warnings.push_back(LinearizedTetsWarning(num_tets));
   return raw;
 }
 

@@ -1,6 +1,7 @@
 // Legacy VTK (ASCII or BINARY, "# vtk DataFile Version 2.0" to "5.1") reading and
 // VTK writing (XML .vtu or legacy), reference: "VTK File Formats" in the VTK
-// User's Guide. Only cell type 10 (VTK_TETRA) is kept on reading.
+// User's Guide. Only tetrahedra are kept on reading: cell type 10 (VTK_TETRA),
+// and 24 (VTK_QUADRATIC_TETRA) from its corners.
 
 #include <algorithm>
 #include <array>
@@ -19,8 +20,6 @@
 
 namespace tetcosim {
 namespace {
-
-constexpr int kVtkTetra = 10;
 
 // appends a double in the shortest form that reads back to the same value
 void AppendNumber(std::string& out, double value) {
@@ -444,13 +443,19 @@ RawMesh ReadVtkLegacy(const std::string& path, std::string_view content) {
               std::to_string(num_cells));
   }
   std::vector<int> tets;
+  long num_linearized = 0;  // quadratic tetrahedra, read from their corners
   for (long c = 0; c < num_cells; ++c) {
-    if (types[static_cast<size_t>(c)] != kVtkTetra) continue;
+    const long type = types[static_cast<size_t>(c)];
+    const int nodes = VtkTetNodes(type);
+    if (nodes == 0) continue;
     long begin = offsets[static_cast<size_t>(c)];
-    if (offsets[static_cast<size_t>(c) + 1] - begin != 4) {
+    if (offsets[static_cast<size_t>(c) + 1] - begin != nodes) {
       ThrowAt(path, cell_lines[static_cast<size_t>(c)],
-              "cell " + std::to_string(c) + " has type 10 (tetrahedron) but not 4 vertices");
+              "cell " + std::to_string(c) + " has type " + std::to_string(type) +
+                  " (a tetrahedron of " + std::to_string(nodes) + " points) but " +
+                  std::to_string(offsets[static_cast<size_t>(c) + 1] - begin) + " points");
     }
+    num_linearized += nodes != 4;
     for (int k = 0; k < 4; ++k) {
       long v = connectivity[static_cast<size_t>(begin + k)];
       if (v < 0 || v >= raw.positions.rows()) {
@@ -464,6 +469,7 @@ RawMesh ReadVtkLegacy(const std::string& path, std::string_view content) {
     raw.element_lines.push_back(cell_lines[static_cast<size_t>(c)]);
   }
   raw.tets = Eigen::Map<const Tets>(tets.data(), static_cast<Eigen::Index>(tets.size() / 4), 4);
+  if (num_linearized > 0) raw.warnings.push_back(LinearizedTetsWarning(num_linearized));
   return raw;
 }
 

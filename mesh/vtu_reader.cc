@@ -2,8 +2,8 @@
 // XML file formats, in the VTK User's Guide. Arrays may be ascii, binary
 // (base64 inline) or appended (raw or base64); the binary ones carry a header
 // of UInt32 or UInt64 sizes, in either byte order, and may be compressed with
-// zlib (vtkZLibDataCompressor, VTK's and meshio's default). Only cell type 10
-// (VTK_TETRA) is kept, as by the legacy reader; pieces are joined.
+// zlib (vtkZLibDataCompressor, VTK's and meshio's default). Only tetrahedra
+// are kept, as by the legacy reader (VtkTetNodes); pieces are joined.
 
 #include <tinyxml2.h>
 #include <zlib.h>
@@ -26,7 +26,6 @@ namespace {
 
 using tinyxml2::XMLElement;
 
-constexpr int kVtkTetra = 10;
 // zlib's deflate never shrinks data by more than about 1032 to 1: a block
 // that claims more is damaged, and must not make the reader allocate for it
 constexpr long kMaxDeflateRatio = 1032;
@@ -267,6 +266,7 @@ class VtuReader {
     raw.positions = Eigen::Map<const Positions>(positions.data(),
                                                 static_cast<Eigen::Index>(positions.size() / 3), 3);
     raw.tets = Eigen::Map<const Tets>(tets.data(), static_cast<Eigen::Index>(tets.size() / 4), 4);
+    if (num_linearized_ > 0) raw.warnings.push_back(LinearizedTetsWarning(num_linearized_));
     return raw;
   }
 
@@ -608,14 +608,18 @@ class VtuReader {
       const long line = connectivity.mark_lines.empty()
                             ? connectivity_array->GetLineNum()
                             : connectivity.mark_lines[static_cast<size_t>(c)];
-      if (types[static_cast<size_t>(c)] != kVtkTetra) continue;
+      const long type = types[static_cast<size_t>(c)];
+      const int nodes = VtkTetNodes(type);
+      if (nodes == 0) continue;
       const long cell = num_cells_before + c;
-      if (end - begin != 4) {
+      if (end - begin != nodes) {
         ThrowAt(path_, line,
-                "cell " + std::to_string(cell) + " has type 10 (tetrahedron) but " +
-                    std::to_string(end - begin) + " points; a tetrahedron has 4");
+                "cell " + std::to_string(cell) + " has type " + std::to_string(type) +
+                    " (a tetrahedron of " + std::to_string(nodes) + " points) but " +
+                    std::to_string(end - begin) + " points");
       }
-      for (long k = begin; k < end; ++k) {
+      num_linearized_ += nodes != 4;
+      for (long k = begin; k < begin + 4; ++k) {
         const long v = connectivity.values[static_cast<size_t>(k)];
         if (v < 0 || v >= num_points) {
           ThrowAt(path_, line,
@@ -643,6 +647,7 @@ class VtuReader {
   bool big_endian_ = false;
   int header_size_ = 4;  // UInt32, VTK's default before header_type existed
   bool zlib_ = false;
+  long num_linearized_ = 0;  // quadratic tetrahedra, read from their corners
 };
 
 }  // namespace

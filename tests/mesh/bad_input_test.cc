@@ -335,7 +335,7 @@ TEST_F(BadInput, VtuProblems) {
             std::string::npos)
       << message;
   message = ErrorOf(Write("t.vtu", Vtu("", kVtuPoints, "0 1 2", "3")));
-  EXPECT_NE(message.find("t.vtu:15: cell 0 has type 10 (tetrahedron) but 3 points"),
+  EXPECT_NE(message.find("t.vtu:15: cell 0 has type 10 (a tetrahedron of 4 points) but 3 points"),
             std::string::npos)
       << message;
   std::string floats = Vtu("", kVtuPoints, "0 1 2 3");

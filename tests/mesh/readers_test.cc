@@ -4,6 +4,8 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <array>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -142,6 +144,40 @@ TEST(Readers, VtuPiecesAreJoinedAndOtherCellsSkipped) {
   EXPECT_EQ(raw.element_ids, (std::vector<long>{0, 2}));
   EXPECT_EQ(raw.element_lines, (std::vector<long>{8, 19}));
   EXPECT_EQ(raw.node_lines[5], 15);
+}
+
+// Second-order meshes of the same shapes (scripts/make-test-data): read as
+// the linear mesh of their corners, with a warning that says so. Gmsh and
+// TetGen make the second-order mesh by adding nodes to the linear one, so
+// the corners are the linear mesh's vertices.
+TEST(Readers, SecondOrderTetrahedraAreReadFromTheirCorners) {
+  auto sorted_rows = [](const Positions& x) {
+    std::vector<std::array<double, 3>> rows;
+    for (Eigen::Index v = 0; v < x.rows(); ++v) rows.push_back({x(v, 0), x(v, 1), x(v, 2)});
+    std::sort(rows.begin(), rows.end());
+    return rows;
+  };
+  TetMesh linear = ReadTetMesh(kData + "/lshape_msh22_ascii.msh");
+  for (const char* file : {"lshape_order2_msh41.msh", "lshape_order2_msh22_binary.msh",
+                           "lshape_order2_meshio.vtu", "lshape_order2_meshio51.vtk"}) {
+    SCOPED_TRACE(file);
+    TetMesh mesh = ReadTetMesh(kData + "/" + file);
+    ASSERT_FALSE(mesh.warnings().empty());
+    EXPECT_EQ(mesh.warnings()[0].find("178 higher-order tetrahedra were read as linear ones"), 0u);
+    EXPECT_EQ(mesh.num_tets(), linear.num_tets());
+    ASSERT_EQ(mesh.num_vertices(), linear.num_vertices());
+    EXPECT_NEAR(mesh.total_volume(), linear.total_volume(), 1e-14 * linear.total_volume());
+    const auto rows = sorted_rows(mesh.positions()), linear_rows = sorted_rows(linear.positions());
+    for (size_t v = 0; v < rows.size(); ++v) {
+      for (int k = 0; k < 3; ++k) EXPECT_NEAR(rows[v][k], linear_rows[v][k], 1e-16);
+    }
+  }
+  TetMesh tetgen = ReadTetMesh(kData + "/sphere_tetgen_order2.ele");
+  TetMesh tetgen_linear = ReadTetMesh(kData + "/sphere_tetgen1.ele");
+  ASSERT_FALSE(tetgen.warnings().empty());
+  EXPECT_EQ(tetgen.warnings()[0].find("580 higher-order tetrahedra"), 0u);
+  EXPECT_EQ(tetgen.positions(), tetgen_linear.positions());
+  EXPECT_EQ(tetgen.tets(), tetgen_linear.tets());
 }
 
 TEST(Readers, PhysicalTagsAreKept) {
