@@ -57,4 +57,10 @@ long StepCount(double seconds, double dt, const std::string& option) {
   return std::max(1L, *steps);
 }
 
+void PrintLoadWarnings(const World& world) {
+  for (const std::string& warning : world.load_warnings()) {
+    std::fprintf(stderr, "tetcosim: warning: %s\n", warning.c_str());
+  }
+}
+
 }  // namespace tetcosim::app

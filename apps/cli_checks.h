@@ -8,6 +8,8 @@
 #include <CLI/CLI.hpp>
 #include <string>
 
+#include "mujoco_bridge/world.h"
+
 namespace tetcosim::app {
 
 // A finite number ("nan" and "inf" are errors).
@@ -21,5 +23,9 @@ CLI::Validator NonNegativeFiniteNumber();
 // command-line option gave: Error, naming `option`, when there are more than
 // 2^53.
 long StepCount(double seconds, double dt, const std::string& option);
+
+// Prints a world's load warnings (World::load_warnings) to stderr, each as
+// "tetcosim: warning: ...".
+void PrintLoadWarnings(const World& world);
 
 }  // namespace tetcosim::app

@@ -88,7 +88,7 @@ std::string RunName(const std::string& method, double dt_ms) {
 }
 
 RunRow RunOne(const CompareOptions& options, const std::string& method, double dt_ms,
-              const std::filesystem::path& out) {
+              const std::filesystem::path& out, bool is_first_run) {
   RunRow row;
   row.method = method;
   row.dt_ms = dt_ms;
@@ -100,6 +100,7 @@ RunRow RunOne(const CompareOptions& options, const std::string& method, double d
   world_options.timestep = dt_ms * 1e-3;
   // a bad scene is reported here, at the first run, before it writes anything
   std::unique_ptr<World> world = World::Load(options.scene, world_options);
+  if (is_first_run) PrintLoadWarnings(*world);  // (the same for every run)
   const long steps = StepCount(options.duration, world->timestep(), "--duration");
   const std::filesystem::path folder = out / row.folder;
   std::filesystem::create_directories(folder);
@@ -309,7 +310,7 @@ void RunCompare(CompareOptions options) {
   std::vector<RunRow> rows;
   for (double dt : dts) {
     for (const std::string& method : options.methods) {
-      rows.push_back(RunOne(options, method, dt, out));
+      rows.push_back(RunOne(options, method, dt, out, rows.empty()));
       WriteTables(options, rows, out);
       if (interrupted) break;
     }

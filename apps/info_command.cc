@@ -3,6 +3,7 @@
 #include <cstdio>
 #include <nlohmann/json.hpp>
 
+#include "apps/cli_checks.h"
 #include "apps/commands.h"
 #include "mesh/mesh_io.h"
 #include "mesh/quality.h"
@@ -23,6 +24,7 @@ bool IsScene(const std::string& file) {
 // a scene: what it holds, after loading it completely (MuJoCo included)
 void RunSceneInfo(const InfoOptions& options) {
   std::unique_ptr<World> world = World::Load(options.file);
+  PrintLoadWarnings(*world);
   const SceneSpec& scene = world->scene();
   nlohmann::ordered_json out;
   out["scene"] = options.file;
@@ -30,6 +32,7 @@ void RunSceneInfo(const InfoOptions& options) {
   out["method"] = DepthMethodName(scene.method);
   out["rigid_bodies"] = world->num_rigid_bodies() - 1;
   out["proxies"] = world->num_proxies();
+  out["warnings"] = world->load_warnings();
   out["attachments"] = scene.attachments.size();
   out["deformables"] = nlohmann::json::array();
   for (int i = 0; i < world->num_deformables(); ++i) {
@@ -117,6 +120,7 @@ void AddCheckCommand(CLI::App& app) {
   check->add_option("scene", *file, "Scene file")->required();
   check->callback([file] {
     std::unique_ptr<World> world = World::Load(*file);
+    PrintLoadWarnings(*world);
     std::printf("%s: ok (%d deformables, %d MuJoCo bodies)\n", file->c_str(),
                 world->num_deformables(), world->num_rigid_bodies() - 1);
   });

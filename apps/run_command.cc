@@ -73,6 +73,7 @@ void RunRollout(const RunOptions& options) {
   world_options.threads = options.threads;
   if (options.timestep > 0.0) world_options.timestep = options.timestep;
   std::unique_ptr<World> world = World::Load(options.scene, world_options);
+  PrintLoadWarnings(*world);
   RolloutMetrics rollout_metrics(*world);
   const double dt = world->timestep();
   const long steps = options.steps > 0        ? options.steps

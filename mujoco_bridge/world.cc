@@ -359,6 +359,16 @@ World::~World() {
   if (model_) mj_deleteModel(model_);
 }
 
+void World::AddLoadWarnings(const TetMesh& mesh, const std::string& scene_path, long line,
+                            const std::string& element, const std::string& file) {
+  for (const std::string& warning : mesh.warnings()) {
+    std::string text = Where(scene_path, line);
+    text.append(": ").append(element).append(": ");
+    if (!file.empty()) text.append(file).append(": ");
+    load_warnings_.push_back(text.append(warning));
+  }
+}
+
 std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOptions& options) {
   std::unique_ptr<World> world(new World());
   world->options_ = options;
@@ -393,6 +403,8 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
     RawMesh raw = std::move(raw_meshes[i]);
     raw.positions *= spec.scale;
     auto mesh = std::make_shared<TetMesh>(TetMesh::Build(std::move(raw)));
+    world->AddLoadWarnings(*mesh, scene_path, spec.line, "<tetbody name=\"" + spec.name + "\">",
+                           spec.file);
     auto model = FemModel::Build(mesh, spec.material, spec.name.c_str());
     auto body = std::make_unique<DeformableBody>(model, spec.name);
     body->Reset(spec.pose, spec.velocity);
@@ -503,6 +515,7 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
       raw.positions.row(v) = (X_BM * raw.positions.row(v).transpose()).transpose();
     }
     proxy->mesh = std::make_shared<TetMesh>(TetMesh::Build(std::move(raw)));
+    world->AddLoadWarnings(*proxy->mesh, scene_path, spec.line, "<rigidtet>", spec.file);
     proxy->areas = ComputeContactAreas(*proxy->mesh);
     proxy->positions = proxy->mesh->positions();
     world->proxies_.push_back(std::move(proxy));

@@ -109,6 +109,11 @@ class World {
   long steps() const { return steps_; }
   const StepMetrics& metrics() const { return metrics_; }
   const SceneSpec& scene() const { return scene_; }
+  // What loading the scene noted that is not an error, a line each, with the
+  // scene's line and element: a mesh's inverted tetrahedra flipped, unused
+  // vertices dropped, higher-order tetrahedra read as linear. The commands
+  // print them; a test may assert there are none.
+  const std::vector<std::string>& load_warnings() const { return load_warnings_; }
 
   const mjModel_* mj_model() const { return model_; }
   mjModel_* mutable_mj_model() { return model_; }
@@ -172,6 +177,10 @@ class World {
   struct Proxy;
   struct GeomContact;
 
+  // mesh's warnings, as load_warnings() gives them: where, `element`, `file`
+  // (empty for a generated shape)
+  void AddLoadWarnings(const TetMesh& mesh, const std::string& scene_path, long line,
+                       const std::string& element, const std::string& file);
   void UpdateProxies();
   void CollectContacts();
   void AddGeomContacts();
@@ -187,6 +196,7 @@ class World {
   mjModel_* model_ = nullptr;
   mjData_* data_ = nullptr;
   std::vector<std::unique_ptr<DeformableBody>> bodies_;
+  std::vector<std::string> load_warnings_;
   std::vector<double> kappa_;     // per deformable: contact stiffness per area and depth
   std::vector<double> friction_;  // per deformable
   std::vector<double> damping_;   // per deformable: damping ratio

@@ -445,6 +445,31 @@ TEST(WorldLoad, BodyTooFarForDoublePrecisionIsAClearError) {
       << message;
 }
 
+// What a mesh's reader or validation noted (here: a second-order mesh read as
+// linear, and its mid-edge nodes dropped) comes with the scene's line, the
+// element and the file; a scene of clean meshes has none.
+TEST(WorldLoad, MeshWarningsNameTheSceneLineAndFile) {
+  TempDir dir;
+  const std::string scene =
+      ReadFileContents(std::string(TETCOSIM_SOURCE_DIR) + "/models/scenes/cube_on_box.xml");
+  EXPECT_TRUE(World::Load(std::string(TETCOSIM_SOURCE_DIR) + "/models/scenes/cube_on_box.xml")
+                  ->load_warnings()
+                  .empty());
+  const std::string shape = "shape=\"box\" size=\"0.04 0.04 0.04\" resolution=\"4\"";
+  ASSERT_NE(scene.find(shape), std::string::npos);
+  std::string quadratic = scene;
+  const std::string file = kData + "/lshape_order2_meshio.vtu";
+  quadratic.replace(quadratic.find(shape), shape.size(), "file=\"" + file + "\"");
+  const std::string path = dir.Write("quadratic.xml", quadratic);
+  const std::vector<std::string> warnings = World::Load(path)->load_warnings();
+  ASSERT_EQ(warnings.size(), 2u);
+  const std::string where = path + ":17: <tetbody name=\"cube\">: " + file + ": ";
+  EXPECT_EQ(warnings[0].rfind(where + "178 higher-order tetrahedra were read as linear", 0), 0u)
+      << warnings[0];
+  EXPECT_EQ(warnings[1].rfind(where + "328 vertices are used by no tetrahedron", 0), 0u)
+      << warnings[1];
+}
+
 TEST(RunCommand, OutputsParse) {
   TempDir dir;
   std::string command = std::string(TETCOSIM_BINARY) + " run " + TETCOSIM_SOURCE_DIR +
