@@ -660,7 +660,7 @@ TEST(Rendering, FrameIsNotBlankAndShowsTheDeformable) {
   }
   EXPECT_GT(changed, 200) << "pixels that changed when the deformable moved";
   try {
-    Renderer(*world, 100, 100, "no-such-camera");
+    const Renderer unknown_camera(*world, 100, 100, "no-such-camera");
     ADD_FAILURE() << "an unknown camera was taken";
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("no camera named 'no-such-camera' in "), std::string::npos)
