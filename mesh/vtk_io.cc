@@ -8,12 +8,12 @@
 #include <charconv>
 #include <cstdint>
 #include <cstdio>
-#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <limits>
 #include <utility>
 
+#include "mesh/binary_values.h"
 #include "mesh/error.h"
 #include "mesh/mesh_io.h"
 #include "mesh/text_reader.h"
@@ -186,78 +186,54 @@ class LegacyValues {
       }
       return value;
     }
-    if (kind_ == Kind::kFloat) {
+    if (kind_ == ValueKind::kFloat) {
       scan_.Fail("expected " + std::string(what) +
                  ", an integer, but the array holds floating-point values");
     }
-    const std::uint64_t bits = NextBits(what);
-    if (kind_ == Kind::kUnsigned) {
-      // (past the largest long: -1, a count and an index no mesh has)
-      return bits > static_cast<std::uint64_t>(std::numeric_limits<long>::max())
-                 ? -1
-                 : static_cast<long>(bits);
-    }
-    const int unused = 64 - 8 * size_;  // (sign-extended from the value's size)
-    return static_cast<long>(static_cast<std::int64_t>(bits << unused) >> unused);
+    return BitsToLong(NextBits(what), size_, kind_);
   }
 
   double Double(std::string_view what) {
     if (!binary_) return scan_.Double(what);
-    const std::uint64_t bits = NextBits(what);
-    if (kind_ != Kind::kFloat) {
-      if (kind_ == Kind::kUnsigned) return static_cast<double>(bits);
-      const int unused = 64 - 8 * size_;
-      return static_cast<double>(static_cast<std::int64_t>(bits << unused) >> unused);
-    }
-    if (size_ == 4) {
-      float value;
-      const auto word = static_cast<std::uint32_t>(bits);
-      std::memcpy(&value, &word, sizeof(value));
-      return value;
-    }
-    double value;
-    std::memcpy(&value, &bits, sizeof(value));
-    return value;
+    return BitsToDouble(NextBits(what), size_, kind_);
   }
 
   // The line of the next value (0 in a binary file, whose errors give the byte).
   long line() const { return binary_ ? 0 : scan_.line(); }
 
  private:
-  enum class Kind { kSigned, kUnsigned, kFloat };
   struct Type {
     std::string_view name;
     int size;
-    Kind kind;
+    ValueKind kind;
   };
-  static constexpr std::array<Type, 14> kTypes = {{{"char", 1, Kind::kSigned},
-                                                   {"unsigned_char", 1, Kind::kUnsigned},
-                                                   {"short", 2, Kind::kSigned},
-                                                   {"unsigned_short", 2, Kind::kUnsigned},
-                                                   {"int", 4, Kind::kSigned},
-                                                   {"unsigned_int", 4, Kind::kUnsigned},
-                                                   {"long", 8, Kind::kSigned},
-                                                   {"unsigned_long", 8, Kind::kUnsigned},
-                                                   {"vtktypeint32", 4, Kind::kSigned},
-                                                   {"vtktypeuint32", 4, Kind::kUnsigned},
-                                                   {"vtktypeint64", 8, Kind::kSigned},
-                                                   {"vtktypeuint64", 8, Kind::kUnsigned},
-                                                   {"float", 4, Kind::kFloat},
-                                                   {"double", 8, Kind::kFloat}}};
+  static constexpr std::array<Type, 14> kTypes = {{{"char", 1, ValueKind::kSigned},
+                                                   {"unsigned_char", 1, ValueKind::kUnsigned},
+                                                   {"short", 2, ValueKind::kSigned},
+                                                   {"unsigned_short", 2, ValueKind::kUnsigned},
+                                                   {"int", 4, ValueKind::kSigned},
+                                                   {"unsigned_int", 4, ValueKind::kUnsigned},
+                                                   {"long", 8, ValueKind::kSigned},
+                                                   {"unsigned_long", 8, ValueKind::kUnsigned},
+                                                   {"vtktypeint32", 4, ValueKind::kSigned},
+                                                   {"vtktypeuint32", 4, ValueKind::kUnsigned},
+                                                   {"vtktypeint64", 8, ValueKind::kSigned},
+                                                   {"vtktypeuint64", 8, ValueKind::kUnsigned},
+                                                   {"float", 4, ValueKind::kFloat},
+                                                   {"double", 8, ValueKind::kFloat}}};
 
-  // the next value's bytes, most significant first, as an integer
+  // the next value's bytes (big-endian, as legacy VTK writes them)
   std::uint64_t NextBits(std::string_view what) {
-    std::uint64_t bits = 0;
-    for (int i = 0; i < size_; ++i) {
-      bits = bits << 8 | scan_.Binary<std::uint8_t>(what);
-    }
-    return bits;
+    scan_.RequireBytes(static_cast<size_t>(size_), what);
+    char bytes[8];
+    for (int i = 0; i < size_; ++i) bytes[i] = scan_.Binary<char>(what);
+    return BytesToBits(bytes, size_, /*big_endian=*/true);
   }
 
   Scanner& scan_;
   bool binary_;
   int size_ = 0;
-  Kind kind_ = Kind::kSigned;
+  ValueKind kind_ = ValueKind::kSigned;
   std::string_view unread_;
 };
 

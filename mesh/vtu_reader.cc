@@ -10,13 +10,13 @@
 
 #include <algorithm>
 #include <array>
-#include <bit>
 #include <charconv>
 #include <cstdint>
-#include <cstring>
 #include <limits>
 #include <optional>
+#include <type_traits>
 
+#include "mesh/binary_values.h"
 #include "mesh/error.h"
 #include "mesh/mesh_io.h"
 #include "mesh/xml_error.h"
@@ -33,34 +33,21 @@ constexpr long kMaxDeflateRatio = 1032;
 constexpr long kMaxCount = 1L << 40;
 
 // The value types of a DataArray's `type` attribute.
-enum class ValueType {
-  kInt8,
-  kUInt8,
-  kInt16,
-  kUInt16,
-  kInt32,
-  kUInt32,
-  kInt64,
-  kUInt64,
-  kFloat32,
-  kFloat64
-};
-
 struct TypeName {
   const char* name;
-  ValueType type;
   int size;
+  ValueKind kind;
 };
-constexpr std::array<TypeName, 10> kTypes = {{{"Int8", ValueType::kInt8, 1},
-                                              {"UInt8", ValueType::kUInt8, 1},
-                                              {"Int16", ValueType::kInt16, 2},
-                                              {"UInt16", ValueType::kUInt16, 2},
-                                              {"Int32", ValueType::kInt32, 4},
-                                              {"UInt32", ValueType::kUInt32, 4},
-                                              {"Int64", ValueType::kInt64, 8},
-                                              {"UInt64", ValueType::kUInt64, 8},
-                                              {"Float32", ValueType::kFloat32, 4},
-                                              {"Float64", ValueType::kFloat64, 8}}};
+constexpr std::array<TypeName, 10> kTypes = {{{"Int8", 1, ValueKind::kSigned},
+                                              {"UInt8", 1, ValueKind::kUnsigned},
+                                              {"Int16", 2, ValueKind::kSigned},
+                                              {"UInt16", 2, ValueKind::kUnsigned},
+                                              {"Int32", 4, ValueKind::kSigned},
+                                              {"UInt32", 4, ValueKind::kUnsigned},
+                                              {"Int64", 8, ValueKind::kSigned},
+                                              {"UInt64", 8, ValueKind::kUnsigned},
+                                              {"Float32", 4, ValueKind::kFloat},
+                                              {"Float64", 8, ValueKind::kFloat}}};
 
 // "<Name>" of an element, for messages (built by appends: g++ 12 warns
 // falsely of overlapping copies in "<" + name + ">")
@@ -151,60 +138,6 @@ class ByteStream {
   std::string decoded_;
   size_t taken_ = 0;
 };
-
-// An unsigned value of `size` bytes (4 or 8) in the file's byte order.
-std::uint64_t ReadUnsigned(const char* bytes, int size, bool big_endian) {
-  std::uint64_t value = 0;
-  for (int i = 0; i < size; ++i) {
-    const int shift = 8 * (big_endian ? size - 1 - i : i);
-    value |= static_cast<std::uint64_t>(static_cast<unsigned char>(bytes[i])) << shift;
-  }
-  return value;
-}
-
-// Value i of a binary array (`size` bytes each, the file's byte order) as T.
-template <typename T>
-T ValueAt(const std::string& bytes, size_t i, ValueType type, int size, bool big_endian) {
-  char value[8];
-  const char* in = bytes.data() + i * static_cast<size_t>(size);
-  for (int k = 0; k < size; ++k) value[k] = in[big_endian ? size - 1 - k : k];
-  static_assert(std::endian::native == std::endian::little);
-  auto as = [&](auto sample) {
-    decltype(sample) v;
-    std::memcpy(&v, value, sizeof(v));
-    return v;
-  };
-  switch (type) {
-    case ValueType::kInt8:
-      return static_cast<T>(as(std::int8_t{}));
-    case ValueType::kUInt8:
-      return static_cast<T>(as(std::uint8_t{}));
-    case ValueType::kInt16:
-      return static_cast<T>(as(std::int16_t{}));
-    case ValueType::kUInt16:
-      return static_cast<T>(as(std::uint16_t{}));
-    case ValueType::kInt32:
-      return static_cast<T>(as(std::int32_t{}));
-    case ValueType::kUInt32:
-      return static_cast<T>(as(std::uint32_t{}));
-    case ValueType::kInt64:
-      return static_cast<T>(as(std::int64_t{}));
-    case ValueType::kUInt64: {
-      const std::uint64_t v = as(std::uint64_t{});
-      // (an index past the largest long: -1, an index no mesh has)
-      if (std::is_integral_v<T> &&
-          v > static_cast<std::uint64_t>(std::numeric_limits<long>::max())) {
-        return static_cast<T>(-1);
-      }
-      return static_cast<T>(v);
-    }
-    case ValueType::kFloat32:
-      return static_cast<T>(as(float{}));
-    case ValueType::kFloat64:
-      return static_cast<T>(as(double{}));
-  }
-  return T{};
-}
 
 // The values of one DataArray, as T (double for points, long for cells), and
 // for an ascii array the lines of the values Marks asks for.
@@ -382,7 +315,7 @@ class VtuReader {
                       "UInt64, Float32, Float64");
     }
     if constexpr (std::is_integral_v<T>) {
-      if (type->type == ValueType::kFloat32 || type->type == ValueType::kFloat64) {
+      if (type->kind == ValueKind::kFloat) {
         Fail(array, ArrayName(array) + " holds " + type->name +
                         " values; cell indices, offsets and types are whole numbers (an Int type)");
       }
@@ -423,7 +356,13 @@ class VtuReader {
     Values<T> result;
     result.values.resize(static_cast<size_t>(num_values));
     for (size_t i = 0; i < result.values.size(); ++i) {
-      result.values[i] = ValueAt<T>(bytes, i, type->type, type->size, big_endian_);
+      const std::uint64_t bits =
+          BytesToBits(bytes.data() + i * static_cast<size_t>(type->size), type->size, big_endian_);
+      if constexpr (std::is_integral_v<T>) {
+        result.values[i] = BitsToLong(bits, type->size, type->kind);
+      } else {
+        result.values[i] = BitsToDouble(bits, type->size, type->kind);
+      }
     }
     return result;
   }
@@ -494,8 +433,8 @@ class VtuReader {
       return *bytes;
     };
     auto header_value = [&](const char* what) {
-      return ReadUnsigned(take(static_cast<size_t>(header_size_), what).data(), header_size_,
-                          big_endian_);
+      return BytesToBits(take(static_cast<size_t>(header_size_), what).data(), header_size_,
+                         big_endian_);
     };
     const std::uint64_t expected =
         static_cast<std::uint64_t>(num_values) * static_cast<std::uint64_t>(size);
