@@ -95,6 +95,15 @@ std::string_view Scanner::TokenOnLine() {
   return Token("a value");
 }
 
+std::string_view Scanner::PeekToken(std::string_view what) {
+  const size_t pos = pos_;
+  const long line = line_;
+  const std::string_view token = Token(what);
+  pos_ = pos;
+  line_ = line;
+  return token;
+}
+
 long Scanner::Int(std::string_view what) {
   std::string_view token = Token(what);
   long value = 0;

@@ -33,6 +33,8 @@ class Scanner {
   // The next token if it is on the current line, else an empty view (the
   // position is left at the line end).
   std::string_view TokenOnLine();
+  // The next token, left to be read again (Token's errors at the end).
+  std::string_view PeekToken(std::string_view what);
   long Int(std::string_view what);
   double Double(std::string_view what);
   // Reads a token and Fail()s unless it equals expected.

@@ -11,7 +11,6 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
-#include <utility>
 
 #include "mesh/binary_values.h"
 #include "mesh/error.h"
@@ -171,21 +170,8 @@ class LegacyValues {
     scan_.SkipBytes(static_cast<size_t>(count) * static_cast<size_t>(size_));
   }
 
-  // A token already read that is the next value (ASCII).
-  void Unread(std::string_view token) { unread_ = token; }
-
   long Int(std::string_view what) {
-    if (!binary_) {
-      if (unread_.empty()) return scan_.Int(what);
-      long value = 0;
-      const std::string_view token = std::exchange(unread_, {});
-      auto [end, ec] = std::from_chars(token.data(), token.data() + token.size(), value);
-      if (ec != std::errc() || end != token.data() + token.size()) {
-        scan_.Fail("expected " + std::string(what) + " (an integer), found '" +
-                   std::string(token.substr(0, 40)) + "'");
-      }
-      return value;
-    }
+    if (!binary_) return scan_.Int(what);
     if (kind_ == ValueKind::kFloat) {
       scan_.Fail("expected " + std::string(what) +
                  ", an integer, but the array holds floating-point values");
@@ -234,7 +220,6 @@ class LegacyValues {
   bool binary_;
   int size_ = 0;
   ValueKind kind_ = ValueKind::kSigned;
-  std::string_view unread_;
 };
 
 }  // namespace
@@ -326,15 +311,12 @@ RawMesh ReadVtkLegacy(const std::string& path, std::string_view content) {
       scan.CheckCount(n, 2, "cells");
       scan.CheckCount(size, 2, "cell list entries");
       offsets.assign(1, 0);
-      bool offsets_form = version5;
-      if (!values.binary()) {  // (ASCII: told by the first word)
-        const std::string_view first = scan.Token("the cell list");
-        offsets_form = first == "OFFSETS";
-        if (!offsets_form) values.Unread(first);
-      }
+      // (ASCII: told by the first word)
+      const bool offsets_form =
+          values.binary() ? version5 : scan.PeekToken("the cell list") == "OFFSETS";
       if (offsets_form) {
         // version 5.1: OFFSETS <type> n values, CONNECTIVITY <type> size values
-        if (values.binary()) scan.Expect("OFFSETS");
+        scan.Expect("OFFSETS");
         values.Begin(scan.Token("the offsets data type"), n, "offsets");
         offsets.clear();
         for (long i = 0; i < n; ++i) offsets.push_back(values.Int("an offset"));
