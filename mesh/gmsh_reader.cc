@@ -1,9 +1,10 @@
 // Gmsh MSH 2.2 and 4.1, ASCII and binary (reference: the Gmsh manual, "MSH
 // file format"). Tetrahedra (element type 4) are kept, and higher-order ones
 // (types 11, 29, 30, 31) as linear ones, from their corner nodes, which Gmsh
-// lists first; every other element type is skipped. Node tags may be non-contiguous and come in
-// several blocks; physical tags are kept per tetrahedron (MSH 2.2: the first element tag; MSH 4.1:
-// the first physical tag of the volume entity).
+// lists first; every other element type is skipped. Node tags may be
+// non-contiguous and come in several blocks; physical tags are kept per
+// tetrahedron (MSH 2.2: the first element tag; MSH 4.1: the first physical
+// tag of the volume entity).
 
 #include <cstdint>
 #include <unordered_map>
@@ -113,7 +114,10 @@ class GmshReader {
     raw_.node_lines.push_back(binary_ ? 0 : scan_.line());
   }
 
-  void AddTet(long tag, const long* nodes, int physical, long line) {
+  // a tetrahedron of element type `type` (IsGmshTet) from its first four
+  // nodes, counting the higher-order ones
+  void AddTet(long type, long tag, const long* nodes, int physical, long line) {
+    num_linearized_ += type != kGmshTet;
     for (int i = 0; i < 4; ++i) {
       auto it = node_index_.find(nodes[i]);
       if (it == node_index_.end()) {
@@ -126,12 +130,6 @@ class GmshReader {
     raw_.element_ids.push_back(tag);
     raw_.element_lines.push_back(line);
     raw_.tet_tags.push_back(physical);
-  }
-  // AddTet for element type `type` (a tetrahedron's), counting the
-  // higher-order ones
-  void AddTetOfType(long type, long tag, const long* nodes, int physical, long line) {
-    num_linearized_ += type != kGmshTet;
-    AddTet(tag, nodes, physical, line);
   }
 
   long Count(std::string_view what) {
@@ -204,7 +202,7 @@ class GmshReader {
             long id = scan_.Binary<std::int32_t>("an element node");
             if (k < 4) ids[k] = id;
           }
-          if (IsGmshTet(type)) AddTetOfType(type, tag, ids, physical, 0);
+          if (IsGmshTet(type)) AddTet(type, tag, ids, physical, 0);
         }
         read += follow;
       }
@@ -234,7 +232,7 @@ class GmshReader {
           scan_.Fail("element " + std::to_string(tag) + " has more than the " +
                      std::to_string(nodes) + " nodes of its type (" + std::to_string(type) + ")");
         }
-        AddTetOfType(type, tag, ids, physical, line);
+        AddTet(type, tag, ids, physical, line);
       }
     }
     scan_.Expect("$EndElements");
@@ -359,7 +357,7 @@ class GmshReader {
           long id = Size("an element node");
           if (k < 4) ids[k] = id;
         }
-        if (IsGmshTet(type)) AddTetOfType(type, tag, ids, physical, line);
+        if (IsGmshTet(type)) AddTet(type, tag, ids, physical, line);
       }
       total += count;
     }
