@@ -57,6 +57,12 @@ long StepCount(double seconds, double dt, const std::string& option) {
   return std::max(1L, *steps);
 }
 
+void PrintMeshWarnings(const TetMesh& mesh) {
+  for (const std::string& warning : mesh.warnings()) {
+    std::fprintf(stderr, "tetcosim: warning: %s: %s\n", mesh.source().c_str(), warning.c_str());
+  }
+}
+
 void PrintLoadWarnings(const World& world) {
   for (const std::string& warning : world.load_warnings()) {
     std::fprintf(stderr, "tetcosim: warning: %s\n", warning.c_str());

@@ -1,9 +1,10 @@
 #pragma once
 
-// Checks of command-line values that the subcommands share. CLI11's
-// PositiveNumber and NonNegativeNumber let NaN through (every comparison
-// with it is false, so `--duration nan` ran the default second) and answer
-// infinity with the whole range of double; these reject both in one line.
+// Checks of command-line values, and the printing of loaded meshes' and
+// scenes' warnings, that the subcommands share. CLI11's PositiveNumber and
+// NonNegativeNumber let NaN through (every comparison with it is false, so
+// `--duration nan` ran the default second) and answer infinity with the
+// whole range of double; these reject both in one line.
 
 #include <CLI/CLI.hpp>
 #include <string>
@@ -24,8 +25,11 @@ CLI::Validator NonNegativeFiniteNumber();
 // 2^53.
 long StepCount(double seconds, double dt, const std::string& option);
 
-// Prints a world's load warnings (World::load_warnings) to stderr, each as
-// "tetcosim: warning: ...".
+// Prints a mesh's warnings (TetMesh::warnings), each as "tetcosim: warning:
+// <its source>: ...", to stderr.
+void PrintMeshWarnings(const TetMesh& mesh);
+// Prints a world's load warnings (World::load_warnings, which name the scene
+// line, element and file), each as "tetcosim: warning: ...", to stderr.
 void PrintLoadWarnings(const World& world);
 
 }  // namespace tetcosim::app

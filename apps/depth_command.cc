@@ -34,11 +34,8 @@ struct DepthOptions {
 void RunDepth(const DepthOptions& options) {
   TetMesh mesh_a = LoadMesh(options.a);
   TetMesh mesh_b = LoadMesh(options.b);
-  for (const TetMesh* mesh : {&mesh_a, &mesh_b}) {
-    for (const std::string& warning : mesh->warnings()) {
-      std::fprintf(stderr, "tetcosim: warning: %s: %s\n", mesh->source().c_str(), warning.c_str());
-    }
-  }
+  PrintMeshWarnings(mesh_a);
+  PrintMeshWarnings(mesh_b);
   // X_WB: rotate about x, then y, then z (degrees), then move
   const double degree = std::numbers::pi / 180.0;
   Eigen::Isometry3d X_WB = Eigen::Isometry3d::Identity();

@@ -67,9 +67,7 @@ void RunInfo(const InfoOptions& options) {
     return;
   }
   TetMesh mesh = LoadMesh(options.file);
-  for (const std::string& warning : mesh.warnings()) {
-    std::fprintf(stderr, "tetcosim: warning: %s: %s\n", mesh.source().c_str(), warning.c_str());
-  }
+  PrintMeshWarnings(mesh);
   MeshQuality quality = ComputeQuality(mesh);
   Eigen::Vector3d lo = mesh.bbox_min();
   Eigen::Vector3d hi = mesh.bbox_max();
