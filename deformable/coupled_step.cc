@@ -11,7 +11,9 @@ struct Coupling {
   int dof_a = -1;  // first global DoF of A's vertex, or -1
   std::array<int, 4> dof_b{-1, -1, -1, -1};
   Eigen::Vector4d w = Eigen::Vector4d::Zero();
-  Eigen::Matrix3d gain;  // dt^2 K + dt D
+  Eigen::Matrix3d gain;     // dt^2 K + dt D
+  bool active = true;       // false: released (its force would pull)
+  bool taken_back = false;  // released, then active again: kept from then on
   Eigen::Vector3d Jv(const Eigen::VectorXd& v) const {
     Eigen::Vector3d u = Eigen::Vector3d::Zero();
     if (dof_a >= 0) u += v.segment<3>(dof_a);
@@ -27,6 +29,45 @@ struct Coupling {
     }
   }
 };
+
+// Filtered, preconditioned conjugate gradients on A x = b from x (Baraff
+// and Witkin 1998: the filter zeroes the pinned degrees of freedom, whose
+// values x holds), until the filtered residual r is at most `threshold` or
+// after max_iterations. Ax = A x is tracked through the iterations, so that
+// the final residual needs no extra product. Returns the iterations.
+template <typename Multiply, typename Precondition, typename Filter>
+int ConjugateGradients(const Multiply& multiply, const Precondition& precondition,
+                       const Filter& filter, const Eigen::VectorXd& b, double threshold,
+                       int max_iterations, Eigen::VectorXd& x, Eigen::VectorXd& Ax,
+                       Eigen::VectorXd& r) {
+  const Eigen::Index n = b.size();
+  Eigen::VectorXd z(n), p(n), q(n);
+  multiply(x, Ax);
+  r = b - Ax;
+  filter(r);
+  precondition(r, z);
+  filter(z);
+  p = z;
+  double rz = r.dot(z);
+  int iteration = 0;
+  while (r.norm() > threshold && iteration < max_iterations) {
+    multiply(p, q);              // p is zero on pinned DoFs
+    const double pq = p.dot(q);  // = p^T A p (filtering q would not change it)
+    if (!(pq > 0.0)) break;      // not positive definite along p (or NaN): stop
+    const double alpha = rz / pq;
+    x += alpha * p;
+    Ax += alpha * q;
+    filter(q);
+    r -= alpha * q;
+    precondition(r, z);
+    filter(z);
+    const double rz_next = r.dot(z);
+    p = z + (rz_next / rz) * p;
+    rz = rz_next;
+    ++iteration;
+  }
+  return iteration;
+}
 
 }  // namespace
 
@@ -69,9 +110,10 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     }
   }
 
-  // contacts: forces into b, gains into the operator and the diagonal
+  // contacts: their linearizations and couplings
   std::vector<Coupling> couplings(contacts.size());
   std::vector<ContactLinearization> linear(contacts.size());
+  std::vector<Eigen::Vector3d> contact_rhs(contacts.size());
   for (size_t c = 0; c < contacts.size(); ++c) {
     const ContactPoint& contact = contacts[c];
     linear[c] = LinearizeContact(bodies, contact, contact_settings);
@@ -86,17 +128,8 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     }
     coupling.gain = dt * dt * linear[c].stiffness + dt * linear[c].damping;
     // dt J^T (f - dt K c + D J v)
-    const Eigen::Vector3d rhs =
-        dt * (linear[c].force - dt * linear[c].stiffness * linear[c].rigid_velocity +
-              linear[c].damping * coupling.Jv(v));
-    coupling.AddJt(rhs, b);
-    if (coupling.dof_a >= 0) blocks[static_cast<size_t>(coupling.dof_a / 3)] += coupling.gain;
-    for (int i = 0; i < 4; ++i) {
-      if (coupling.dof_b[i] >= 0) {
-        blocks[static_cast<size_t>(coupling.dof_b[i] / 3)] +=
-            coupling.w[i] * coupling.w[i] * coupling.gain;
-      }
-    }
+    contact_rhs[c] = dt * (linear[c].force - dt * linear[c].stiffness * linear[c].rigid_velocity +
+                           linear[c].damping * coupling.Jv(v));
   }
 
   // y = A x
@@ -104,82 +137,118 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     for (int k = 0; k < num_bodies; ++k) {
       bodies[k]->MultiplySystem(x.data() + offset[k], y.data() + offset[k]);
     }
-    for (const Coupling& coupling : couplings) coupling.AddJt(coupling.gain * coupling.Jv(x), y);
+    for (const Coupling& coupling : couplings) {
+      if (coupling.active) coupling.AddJt(coupling.gain * coupling.Jv(x), y);
+    }
   };
   auto filter = [&](Eigen::VectorXd& x) {
     for (int i = 0; i < n; ++i) {
       if (pinned[i]) x[i] = 0.0;
     }
   };
-
-  // filtered, block-Jacobi-preconditioned CG on A dv = b - A v; A dv is
-  // tracked alongside dv, so that the final residual needs no extra product
-  for (Eigen::Matrix3d& block : blocks) {
-    // symmetric positive definite (mass + PSD terms): invert directly
-    block = block.inverse().eval();
-  }
-  auto precondition = [&](const Eigen::VectorXd& r, Eigen::VectorXd& z) {
-    for (size_t i = 0; i < blocks.size(); ++i) {
-      z.segment<3>(3 * static_cast<Eigen::Index>(i)) =
-          blocks[i] * r.segment<3>(3 * static_cast<Eigen::Index>(i));
-    }
-  };
-  // the tolerance is relative to this step's impulse, b - (1 + dt alpha) M v
-  // (what the forces add to the momentum), which needs no product with A;
-  // floored at a millionth of the momentum for a body on which nothing acts
-  Eigen::VectorXd impulse(n), momentum(n);
+  Eigen::VectorXd momentum(n);
   for (int k = 0; k < num_bodies; ++k) {
     bodies[k]->MultiplyMass(v.data() + offset[k], momentum.data() + offset[k]);
   }
-  impulse = b - momentum;
-  filter(impulse);
   filter(momentum);
-  const double reference = std::max(impulse.norm(), 1e-6 * momentum.norm());
-  // one product for the warm start v + dv: A v+ is tracked through the
-  // iterations, so that the final residual needs no extra product
-  Eigen::VectorXd v_new = v + delta, Av_new(n), r(n), z(n), p(n), q(n);
-  multiply(v_new, Av_new);
-  r = b - Av_new;
-  filter(r);
-  precondition(r, z);
-  filter(z);
-  p = z;
-  double rz = r.dot(z);
-  CoupledStepReport report;
-  const double threshold = settings.cg_tolerance * reference;
-  int iteration = 0;
-  while (r.norm() > threshold && iteration < settings.cg_max_iterations) {
-    multiply(p, q);              // p is zero on pinned DoFs
-    const double pq = p.dot(q);  // = p^T A p (filtering q would not change it)
-    if (!(pq > 0.0)) break;      // not positive definite along p (or NaN): stop
-    const double alpha = rz / pq;
-    v_new += alpha * p;
-    Av_new += alpha * q;
-    filter(q);
-    r -= alpha * q;
-    precondition(r, z);
-    filter(z);
-    const double rz_next = r.dot(z);
-    p = z + (rz_next / rz) * p;
-    rz = rz_next;
-    ++iteration;
-  }
-  report.iterations = iteration;
-  report.residual = reference > 0.0 ? r.norm() / reference : 0.0;
 
-  // the forces actually integrated, and the pin residuals
+  // the force of contact c integrated to the end of the step, at v+
+  auto integrated_force = [&](size_t c, const Eigen::VectorXd& v_plus) -> Eigen::Vector3d {
+    const Eigen::Vector3d Jv_plus = couplings[c].Jv(v_plus);
+    return linear[c].force - dt * linear[c].stiffness * (Jv_plus + linear[c].rigid_velocity) -
+           linear[c].damping * (Jv_plus - couplings[c].Jv(v));
+  };
+
+  // Rounds of solves, each with the contacts that push (coupled_step.h);
+  // the first guess: those that push at the warm start.
+  Eigen::VectorXd v_new = v + delta;
   for (size_t c = 0; c < contacts.size(); ++c) {
-    const Coupling& coupling = couplings[c];
-    const Eigen::Vector3d Jv_new = coupling.Jv(v_new);
-    contacts[c].force = linear[c].force -
-                        dt * linear[c].stiffness * (Jv_new + linear[c].rigid_velocity) -
-                        linear[c].damping * (Jv_new - coupling.Jv(v));
+    couplings[c].active = integrated_force(c, v_new).dot(contacts[c].direction) >= 0.0;
   }
+  const Eigen::VectorXd body_rhs = b;
+  const std::vector<Eigen::Matrix3d> body_blocks = blocks;
+  CoupledStepReport report;
+  Eigen::VectorXd Av_new(n), r(n);
+  // (until the contacts settle, rounds solve to kSettlingTolerance, then
+  // once precisely from there: when the first guess holds, as many
+  // iterations in all as one precise solve)
+  bool precise = contacts.empty() || settings.cg_tolerance >= kSettlingTolerance;
+  for (int round = 0;; ++round) {
+    const bool last = round + 1 >= kMaxContactRounds;
+    precise |= last;
+    // the active contacts' forces into b, gains into the diagonal
+    b = body_rhs;
+    blocks = body_blocks;
+    for (size_t c = 0; c < contacts.size(); ++c) {
+      const Coupling& coupling = couplings[c];
+      if (!coupling.active) continue;
+      coupling.AddJt(contact_rhs[c], b);
+      if (coupling.dof_a >= 0) blocks[static_cast<size_t>(coupling.dof_a / 3)] += coupling.gain;
+      for (int i = 0; i < 4; ++i) {
+        if (coupling.dof_b[i] >= 0) {
+          blocks[static_cast<size_t>(coupling.dof_b[i] / 3)] +=
+              coupling.w[i] * coupling.w[i] * coupling.gain;
+        }
+      }
+    }
+    // block-Jacobi-preconditioned CG on A v+ = b, warm-started from v plus
+    // each body's last change, then from the last round's solution
+    for (Eigen::Matrix3d& block : blocks) {
+      // symmetric positive definite (mass + PSD terms): invert directly
+      block = block.inverse().eval();
+    }
+    auto precondition = [&](const Eigen::VectorXd& x, Eigen::VectorXd& y) {
+      for (size_t i = 0; i < blocks.size(); ++i) {
+        y.segment<3>(3 * static_cast<Eigen::Index>(i)) =
+            blocks[i] * x.segment<3>(3 * static_cast<Eigen::Index>(i));
+      }
+    };
+    // the tolerance is relative to this step's impulse, b - (1 + dt alpha)
+    // M v (what the forces add to the momentum), which needs no product
+    // with A; floored at a millionth of the momentum for a body on which
+    // nothing acts
+    Eigen::VectorXd impulse = b - momentum;
+    filter(impulse);
+    const double reference = std::max(impulse.norm(), 1e-6 * momentum.norm());
+    const double threshold = (precise ? settings.cg_tolerance : kSettlingTolerance) * reference;
+    report.iterations += ConjugateGradients(multiply, precondition, filter, b, threshold,
+                                            settings.cg_max_iterations, v_new, Av_new, r);
+    report.residual = reference > 0.0 ? r.norm() / reference : 0.0;
+
+    // the forces actually integrated (none for a released contact), and
+    // the contacts whose force at this solution has the other sign than
+    // their state
+    bool changed = false;
+    report.released_contacts = 0;
+    for (size_t c = 0; c < contacts.size(); ++c) {
+      Coupling& coupling = couplings[c];
+      const Eigen::Vector3d force = integrated_force(c, v_new);
+      const bool pushes = force.dot(contacts[c].direction) >= 0.0;
+      if (!last) {
+        if (coupling.active && !pushes && !coupling.taken_back) {
+          coupling.active = false;
+          changed = true;
+        } else if (!coupling.active && pushes) {
+          coupling.active = true;
+          coupling.taken_back = true;
+          changed = true;
+        }
+      }
+      contacts[c].force = coupling.active ? force : Eigen::Vector3d::Zero();
+      report.released_contacts += !coupling.active;
+    }
+    if (!changed && precise) break;
+    precise |= !changed;
+    report.rounds = round + 2;
+  }
+
+  // the pin residuals
   const Eigen::VectorXd residual = Av_new - b;
   for (int k = 0; k < num_bodies; ++k) {
     const int size = offset[k + 1] - offset[k];
-    StepReport body_report = bodies[k]->FinishStep(
-        v_new.segment(offset[k], size), residual.segment(offset[k], size), settings, iteration);
+    StepReport body_report =
+        bodies[k]->FinishStep(v_new.segment(offset[k], size), residual.segment(offset[k], size),
+                              settings, report.iterations);
     if (body_report.status != StepStatus::kOk && report.status == StepStatus::kOk) {
       report.status = body_report.status;
       report.bad_body = k;

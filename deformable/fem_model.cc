@@ -29,6 +29,19 @@ Eigen::VectorXd ComputeContactAreas(const TetMesh& m) {
   return areas;
 }
 
+double MeanSurfaceVertexArea(const TetMesh& m) {
+  double area = 0.0;
+  for (Eigen::Index f = 0; f < m.surface().rows(); ++f) {
+    const Eigen::Vector3d a = m.positions().row(m.surface()(f, 0));
+    const Eigen::Vector3d b = m.positions().row(m.surface()(f, 1));
+    const Eigen::Vector3d c = m.positions().row(m.surface()(f, 2));
+    area += 0.5 * (b - a).cross(c - a).norm();
+  }
+  int surface_vertices = 0;
+  for (int v = 0; v < m.num_vertices(); ++v) surface_vertices += m.is_surface_vertex(v);
+  return surface_vertices > 0 ? area / surface_vertices : 0.0;
+}
+
 std::shared_ptr<const FemModel> FemModel::Build(std::shared_ptr<const TetMesh> mesh,
                                                 const Material& material, const char* where) {
   material.Validate(where);

@@ -25,6 +25,11 @@ struct ElementBatch {
 // for interior ones.
 Eigen::VectorXd ComputeContactAreas(const TetMesh& mesh);
 
+// The surface area per surface vertex (m^2): how finely the surface samples
+// contact. A vertex of another mesh pressing into this one stands for at
+// most this much area (see World's contacts).
+double MeanSurfaceVertexArea(const TetMesh& mesh);
+
 class FemModel {
  public:
   // Throws Error if the material is invalid (`where` names the body).

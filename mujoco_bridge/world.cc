@@ -345,6 +345,7 @@ struct World::Proxy {
   int placements = 0;
 
   Eigen::VectorXd areas;
+  double mean_surface_area = 0.0;  // MeanSurfaceVertexArea
   double friction = 0.5;
 };
 
@@ -413,6 +414,7 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
         scene_contact.stiffness.value_or(DefaultContactPressureStiffness(*model)));
     if (kappa <= 0.0) kappa = DefaultContactPressureStiffness(*model);
     world->kappa_.push_back(kappa);
+    world->mean_surface_area_.push_back(MeanSurfaceVertexArea(*mesh));
     world->friction_.push_back(
         spec.contact.friction.value_or(scene_contact.friction.value_or(0.5)));
     world->damping_.push_back(spec.contact.damping.value_or(scene_contact.damping.value_or(0.5)));
@@ -517,6 +519,7 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
     proxy->mesh = std::make_shared<TetMesh>(TetMesh::Build(std::move(raw)));
     world->AddLoadWarnings(*proxy->mesh, scene_path, spec.line, "<rigidtet>", spec.file);
     proxy->areas = ComputeContactAreas(*proxy->mesh);
+    proxy->mean_surface_area = MeanSurfaceVertexArea(*proxy->mesh);
     proxy->positions = proxy->mesh->positions();
     world->proxies_.push_back(std::move(proxy));
   }
@@ -790,15 +793,26 @@ void World::CollectContacts() {
   contact_rigid_body_.clear();
   BuildCollisionObjects();
   const int num_deformables = static_cast<int>(bodies_.size());
+  // a point of A inside B stands for its own contact area, but for no more
+  // than B's surface area per vertex: where a coarse surface presses on a
+  // finer one (a table's proxy under a small soft body), the finer samples
+  // the contact, and one coarse vertex would otherwise carry the load of a
+  // patch larger than the contact itself
+  auto mean_surface_area = [&](int object) {
+    return object < num_deformables ? mean_surface_area_[object]
+                                    : proxies_[object - num_deformables]->mean_surface_area;
+  };
   for (const PenetrationResult& r : solver_.Solve(objects_)) {
     ContactPoint contact;
     contact.depth = r.depth;
     contact.direction = r.direction;
     int rigid = -1;
+    double area = 0.0, kappa = 0.0;
     if (r.object < num_deformables) {
       contact.body_a = r.object;
       contact.vertex_a = r.vertex;
-      contact.stiffness = kappa_[r.object] * bodies_[r.object]->model().contact_areas()[r.vertex];
+      area = bodies_[r.object]->model().contact_areas()[r.vertex];
+      kappa = kappa_[r.object];
       contact.friction = friction_[r.object];
       contact.damping_ratio = damping_[r.object];
     } else {
@@ -807,10 +821,12 @@ void World::CollectContacts() {
       Eigen::Vector3d p = proxy.positions.row(r.vertex).transpose();
       contact.velocity_a = RigidBodyPointVelocity(proxy.body, p);
       contact.mass_a = model_->body_mass[proxy.body];
-      contact.stiffness = kappa_[r.penetrated] * proxy.areas[r.vertex];
+      area = proxy.areas[r.vertex];
+      kappa = kappa_[r.penetrated];
       contact.friction = std::max(friction_[r.penetrated], proxy.friction);
       contact.damping_ratio = damping_[r.penetrated];
     }
+    contact.stiffness = kappa * std::min(area, mean_surface_area(r.penetrated));
     if (r.penetrated < num_deformables) {
       contact.body_b = r.penetrated;
       contact.tet_b = r.tet;

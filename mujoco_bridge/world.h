@@ -197,10 +197,11 @@ class World {
   mjData_* data_ = nullptr;
   std::vector<std::unique_ptr<DeformableBody>> bodies_;
   std::vector<std::string> load_warnings_;
-  std::vector<double> kappa_;     // per deformable: contact stiffness per area and depth
-  std::vector<double> friction_;  // per deformable
-  std::vector<double> damping_;   // per deformable: damping ratio
-  std::vector<int> attach_body_;  // per deformable: MuJoCo body of its pins, or -1
+  std::vector<double> kappa_;              // per deformable: contact stiffness per area and depth
+  std::vector<double> mean_surface_area_;  // per deformable: MeanSurfaceVertexArea
+  std::vector<double> friction_;           // per deformable
+  std::vector<double> damping_;            // per deformable: damping ratio
+  std::vector<int> attach_body_;           // per deformable: MuJoCo body of its pins, or -1
   std::vector<std::unique_ptr<Proxy>> proxies_;
   std::vector<char> geom_has_proxy_;
   PenetrationSolver solver_;

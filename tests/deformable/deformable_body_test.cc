@@ -218,6 +218,54 @@ TEST(DeformableBody, RestingDepthIsAboutTheSameAtTwoResolutions) {
             2.0);
 }
 
+// A penalty contact pushes and never pulls. A cube pressed into the
+// half-space z <= 0 and leaving it at a speed that takes it out within the
+// step: the linearized force (k d - k dt v_n) would pull it back; the step
+// releases those contacts instead, and the cube leaves with exactly its
+// speed plus what the contacts pushed (nothing acts otherwise).
+TEST(DeformableBody, LeavingContactsAreReleasedNotPulling) {
+  auto model = Model("box:size=0.05:res=3", Material{1e5, 0.3, 1000, 0, 0});
+  DeformableBody body(model, "box");
+  const double depth = 1e-5, speed = 1.0;
+  body.Reset(At({0.0, 0.0, 0.05 - depth}), {0.0, 0.0, speed});
+  StepSettings settings;
+  settings.gravity.setZero();
+  settings.cg_tolerance = 1e-12;
+  std::vector<ContactPoint> contacts;
+  AddHalfSpaceContacts(0, body, Eigen::Vector3d::UnitZ(), 0.0,
+                       DefaultContactPressureStiffness(*model), 0.5, contacts);
+  ASSERT_EQ(contacts.size(), 16u);  // the bottom face's 4 x 4 vertices
+  // (each contact's k dt speed is far above its k depth)
+  DeformableBody* bodies[1] = {&body};
+  const CoupledStepReport report = StepCoupled(bodies, contacts, ContactSettings{}, settings);
+  ASSERT_EQ(report.status, StepStatus::kOk);
+  EXPECT_EQ(report.released_contacts, 16);
+  for (const ContactPoint& contact : contacts) {
+    EXPECT_GE(contact.force.dot(contact.direction), 0.0) << "a contact pulls";
+  }
+  const double momentum = body.LinearMomentum().z();
+  EXPECT_NEAR(momentum, model->total_mass() * speed, 1e-9 * model->total_mass() * speed);
+}
+
+// Contacts that stay get their force: the same cube pressed in and at
+// rest is pushed out, every contact kept.
+TEST(DeformableBody, PressedContactsAreKept) {
+  auto model = Model("box:size=0.05:res=3", Material{1e5, 0.3, 1000, 0, 0});
+  DeformableBody body(model, "box");
+  body.Reset(At({0.0, 0.0, 0.05 - 1e-4}), Eigen::Vector3d::Zero());
+  StepSettings settings;
+  settings.gravity.setZero();
+  std::vector<ContactPoint> contacts;
+  AddHalfSpaceContacts(0, body, Eigen::Vector3d::UnitZ(), 0.0,
+                       DefaultContactPressureStiffness(*model), 0.5, contacts);
+  DeformableBody* bodies[1] = {&body};
+  const CoupledStepReport report = StepCoupled(bodies, contacts, ContactSettings{}, settings);
+  ASSERT_EQ(report.status, StepStatus::kOk);
+  EXPECT_EQ(report.released_contacts, 0);
+  for (const ContactPoint& contact : contacts) EXPECT_GT(contact.force.z(), 0.0);
+  EXPECT_GT(body.LinearMomentum().z(), 0.0);
+}
+
 TEST(DeformableBody, StiffCubeAtTenMillisecondsStaysBounded) {
   DropResult r = DropCube("box:size=0.05:res=5", 1e7, 10e-3, 3.0);
   EXPECT_LT(r.max_depth_at_rest, 0.005);

@@ -1,0 +1,108 @@
+// Coulomb friction against its analytic answer: a soft block on a floor
+// under gravity tilted by theta (the same as a slope) slides with
+// acceleration g (sin theta - mu cos theta) when tan theta > mu, and holds
+// when tan theta < mu, but for the creep of the smooth friction law
+// (contact.h): mu f_n v / sqrt(v^2 + v_s^2) = m g sin theta gives
+// v = v_s q / sqrt(1 - q^2), q = tan theta / mu. On a MuJoCo plane (signed
+// distance) and on the tetrahedral proxy of a static box (the consistent
+// penetration depth, both ways: the block's vertices in the proxy and the
+// proxy's coarse vertices in the block). Labelled "scenario".
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <string>
+
+#include "deformable/contact.h"
+#include "mujoco_bridge/world.h"
+#include "tests/mujoco_bridge/temp_dir.h"
+
+namespace tetcosim {
+namespace {
+
+constexpr double kGravity = 9.81;
+constexpr double kMu = 0.4;
+
+// the floor the block stands on
+enum class Floor { kPlaneGeom, kStaticProxy };
+
+// (the proxy: a slab of 2 x 0.6 x 0.1 m in 8 x 8 x 8 cells, whose surface
+// vertices each stand for far more area than the block's bottom)
+std::string Scene(Floor floor, double theta) {
+  char gravity[96];
+  std::snprintf(gravity, sizeof gravity, "%.17g 0 %.17g", kGravity * std::sin(theta),
+                -kGravity * std::cos(theta));
+  std::string floor_xml, proxy_xml;
+  if (floor == Floor::kPlaneGeom) {
+    floor_xml = "<geom name='floor' type='plane' size='5 5 0.1' friction='0.4'/>";
+  } else {
+    floor_xml =
+        "<body name='slab' pos='0 0 -0.05'>"
+        "<geom name='slab' type='box' size='1 0.3 0.05' friction='0.4' contype='0' "
+        "conaffinity='0'/></body>";
+    proxy_xml = "<rigidtet body='slab' geom='slab' resolution='8'/>";
+  }
+  return std::string("<mujoco><option timestep='0.002' gravity='") + gravity + "'/><worldbody>" +
+         floor_xml + "</worldbody><deformable><contact friction='0.4'/>" + proxy_xml +
+         "<tetbody name='block' shape='box' size='0.05 0.05 0.03' resolution='8' "
+         "pos='-0.5 0 0.031' density='1000' young='2e5' poisson='0.3' damping='0 0.002'/>"
+         "</deformable></mujoco>";
+}
+
+// the block's mean velocity along the slope: its change over steps 100 to
+// 400 (0.2 to 0.8 s, after landing), and its largest size there
+struct Slide {
+  double acceleration = 0.0;
+  double max_speed = 0.0;
+};
+
+Slide RunOnSlope(Floor floor, double theta) {
+  TempDir dir("tetcosim_friction");
+  std::unique_ptr<World> world = World::Load(dir.Write("scene.xml", Scene(floor, theta)));
+  const DeformableBody& block = world->deformable(world->DeformableIndex("block"));
+  const double mass = block.model().total_mass();
+  auto speed = [&] { return block.LinearMomentum().x() / mass; };
+  Slide slide;
+  double v0 = 0.0;
+  for (int s = 0; s < 400; ++s) {
+    world->Step();
+    EXPECT_EQ(world->metrics().status, StepStatus::kOk) << world->metrics().message;
+    if (s == 99) v0 = speed();
+    if (s >= 99) slide.max_speed = std::max(slide.max_speed, std::abs(speed()));
+  }
+  slide.acceleration = (speed() - v0) / (300 * world->timestep());
+  return slide;
+}
+
+TEST(Friction, SlidingOnAPlaneGeomAcceleratesAsCoulombSays) {
+  const double theta = std::atan(2 * kMu);
+  const double expected = kGravity * (std::sin(theta) - kMu * std::cos(theta));
+  const Slide slide = RunOnSlope(Floor::kPlaneGeom, theta);
+  std::printf("plane: acceleration %.4f m/s^2, Coulomb %.4f\n", slide.acceleration, expected);
+  EXPECT_NEAR(slide.acceleration, expected, 0.02 * expected);
+}
+
+TEST(Friction, SlidingOnAProxyAcceleratesAsCoulombSays) {
+  const double theta = std::atan(2 * kMu);
+  const double expected = kGravity * (std::sin(theta) - kMu * std::cos(theta));
+  const Slide slide = RunOnSlope(Floor::kStaticProxy, theta);
+  std::printf("proxy: acceleration %.4f m/s^2, Coulomb %.4f\n", slide.acceleration, expected);
+  EXPECT_NEAR(slide.acceleration, expected, 0.02 * expected);
+}
+
+TEST(Friction, HoldsBelowTheFrictionAngleButForTheSmoothingsCreep) {
+  const double q = 0.5;  // tan theta / mu
+  const double theta = std::atan(q * kMu);
+  const double creep = ContactSettings{}.slip_velocity * q / std::sqrt(1.0 - q * q);
+  for (Floor floor : {Floor::kPlaneGeom, Floor::kStaticProxy}) {
+    const Slide slide = RunOnSlope(floor, theta);
+    std::printf("hold: acceleration %.3g m/s^2, largest speed %.4g m/s, creep %.4g m/s\n",
+                slide.acceleration, slide.max_speed, creep);
+    EXPECT_NEAR(slide.max_speed, creep, 0.02 * creep);
+    EXPECT_NEAR(slide.acceleration, 0.0, 1e-3);
+  }
+}
+
+}  // namespace
+}  // namespace tetcosim
