@@ -30,15 +30,16 @@ Eigen::VectorXd ComputeContactAreas(const TetMesh& m) {
 }
 
 double MeanSurfaceVertexArea(const TetMesh& m) {
+  // (a surface vertex's contact area is a third of its triangles': they
+  // add up to the surface's)
+  const Eigen::VectorXd areas = ComputeContactAreas(m);
   double area = 0.0;
-  for (Eigen::Index f = 0; f < m.surface().rows(); ++f) {
-    const Eigen::Vector3d a = m.positions().row(m.surface()(f, 0));
-    const Eigen::Vector3d b = m.positions().row(m.surface()(f, 1));
-    const Eigen::Vector3d c = m.positions().row(m.surface()(f, 2));
-    area += 0.5 * (b - a).cross(c - a).norm();
-  }
   int surface_vertices = 0;
-  for (int v = 0; v < m.num_vertices(); ++v) surface_vertices += m.is_surface_vertex(v);
+  for (int v = 0; v < m.num_vertices(); ++v) {
+    if (!m.is_surface_vertex(v)) continue;
+    area += areas[v];
+    ++surface_vertices;
+  }
   return surface_vertices > 0 ? area / surface_vertices : 0.0;
 }
 

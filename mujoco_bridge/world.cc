@@ -812,7 +812,9 @@ void World::CollectContacts() {
       contact.body_a = r.object;
       contact.vertex_a = r.vertex;
       area = bodies_[r.object]->model().contact_areas()[r.vertex];
-      kappa = kappa_[r.object];
+      // (the softer body's, between two deformables: the one that gives)
+      kappa = r.penetrated < num_deformables ? std::min(kappa_[r.object], kappa_[r.penetrated])
+                                             : kappa_[r.object];
       contact.friction = friction_[r.object];
       contact.damping_ratio = damping_[r.object];
     } else {

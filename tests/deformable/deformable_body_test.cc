@@ -9,6 +9,7 @@
 #include "collision/penetration.h"
 #include "deformable/contact.h"
 #include "deformable/coupled_step.h"
+#include "deformable/fem_model.h"
 #include "mesh/error.h"
 #include "mesh/generators.h"
 
@@ -216,6 +217,13 @@ TEST(DeformableBody, RestingDepthIsAboutTheSameAtTwoResolutions) {
   EXPECT_LT(std::max(coarse.max_depth_at_rest, fine.max_depth_at_rest) /
                 std::min(coarse.max_depth_at_rest, fine.max_depth_at_rest),
             2.0);
+}
+
+// A box of 3 x 3 x 3 cells, 10 cm a side: 0.06 m^2 of surface over its
+// 4^3 - 2^3 surface vertices.
+TEST(FemModel, MeanSurfaceVertexAreaOfABox) {
+  const TetMesh mesh = TetMesh::Build(MakeShape("box:size=0.05:res=3"));
+  EXPECT_NEAR(MeanSurfaceVertexArea(mesh), 0.06 / 56.0, 1e-15);
 }
 
 // A penalty contact pushes and never pulls. A cube pressed into the

@@ -4,9 +4,10 @@
 // when tan theta < mu, but for the creep of the smooth friction law
 // (contact.h): mu f_n v / sqrt(v^2 + v_s^2) = m g sin theta gives
 // v = v_s q / sqrt(1 - q^2), q = tan theta / mu. On a MuJoCo plane (signed
-// distance) and on the tetrahedral proxy of a static box (the consistent
-// penetration depth, both ways: the block's vertices in the proxy and the
-// proxy's coarse vertices in the block). Labelled "scenario".
+// distance), on the tetrahedral proxy of a static box and on a stiff
+// pinned deformable slab (the consistent penetration depth, both ways: the
+// block's vertices in the floor and the floor's coarse vertices in the
+// block). Labelled "scenario".
 
 #include <gtest/gtest.h>
 
@@ -24,11 +25,11 @@ namespace {
 constexpr double kGravity = 9.81;
 constexpr double kMu = 0.4;
 
-// the floor the block stands on
-enum class Floor { kPlaneGeom, kStaticProxy };
-
-// (the proxy: a slab of 2 x 0.6 x 0.1 m in 8 x 8 x 8 cells, whose surface
+// the floor the block stands on: a MuJoCo plane, the proxy of a static box,
+// or a stiff deformable slab whose bottom is pinned to a static body (the
+// box and the slab: 2 x 0.6 x 0.1 m in 8 x 8 x 8 cells, whose surface
 // vertices each stand for far more area than the block's bottom)
+enum class Floor { kPlaneGeom, kStaticProxy, kDeformableSlab };
 std::string Scene(Floor floor, double theta) {
   char gravity[96];
   std::snprintf(gravity, sizeof gravity, "%.17g 0 %.17g", kGravity * std::sin(theta),
@@ -36,12 +37,18 @@ std::string Scene(Floor floor, double theta) {
   std::string floor_xml, proxy_xml;
   if (floor == Floor::kPlaneGeom) {
     floor_xml = "<geom name='floor' type='plane' size='5 5 0.1' friction='0.4'/>";
-  } else {
+  } else if (floor == Floor::kStaticProxy) {
     floor_xml =
         "<body name='slab' pos='0 0 -0.05'>"
         "<geom name='slab' type='box' size='1 0.3 0.05' friction='0.4' contype='0' "
         "conaffinity='0'/></body>";
     proxy_xml = "<rigidtet body='slab' geom='slab' resolution='8'/>";
+  } else {
+    floor_xml = "<body name='anchor'/>";
+    proxy_xml =
+        "<tetbody name='slab' shape='box' size='1 0.3 0.05' resolution='8' pos='0 0 -0.05' "
+        "density='1000' young='1e8' poisson='0.3' friction='0.4'/>"
+        "<attach tetbody='slab' body='anchor' box='-2 -1 -0.2 2 1 -0.09'/>";
   }
   return std::string("<mujoco><option timestep='0.002' gravity='") + gravity + "'/><worldbody>" +
          floor_xml + "</worldbody><deformable><contact friction='0.4'/>" + proxy_xml +
@@ -76,13 +83,13 @@ Slide RunOnSlope(Floor floor, double theta) {
 }
 
 const char* Name(Floor floor) {
-  return floor == Floor::kPlaneGeom ? "plane" : "proxy";
+  return floor == Floor::kPlaneGeom ? "plane" : floor == Floor::kStaticProxy ? "proxy" : "slab";
 }
 
 TEST(Friction, SlidesAboveTheFrictionAngleAsCoulombSays) {
   const double theta = std::atan(2 * kMu);
   const double expected = kGravity * (std::sin(theta) - kMu * std::cos(theta));
-  for (Floor floor : {Floor::kPlaneGeom, Floor::kStaticProxy}) {
+  for (Floor floor : {Floor::kPlaneGeom, Floor::kStaticProxy, Floor::kDeformableSlab}) {
     const Slide slide = RunOnSlope(floor, theta);
     std::printf("%s: acceleration %.4f m/s^2, Coulomb %.4f\n", Name(floor), slide.acceleration,
                 expected);
@@ -94,7 +101,7 @@ TEST(Friction, HoldsBelowTheFrictionAngleButForTheSmoothingsCreep) {
   const double q = 0.5;  // tan theta / mu
   const double theta = std::atan(q * kMu);
   const double creep = ContactSettings{}.slip_velocity * q / std::sqrt(1.0 - q * q);
-  for (Floor floor : {Floor::kPlaneGeom, Floor::kStaticProxy}) {
+  for (Floor floor : {Floor::kPlaneGeom, Floor::kStaticProxy, Floor::kDeformableSlab}) {
     const Slide slide = RunOnSlope(floor, theta);
     std::printf("%s: acceleration %.3g m/s^2, largest speed %.4g m/s, creep %.4g m/s\n",
                 Name(floor), slide.acceleration, slide.max_speed, creep);
