@@ -7,10 +7,27 @@
 #include <cstdint>
 #include <cstring>
 #include <limits>
+#include <span>
+#include <string_view>
 
 namespace tetcosim {
 
 enum class ValueKind { kSigned, kUnsigned, kFloat };
+
+// A value type of a file format: its name there, its size in bytes, its kind.
+struct BinaryType {
+  std::string_view name;
+  int size;
+  ValueKind kind;
+};
+
+// The entry of `types` named `name`, or nullptr.
+inline const BinaryType* FindBinaryType(std::span<const BinaryType> types, std::string_view name) {
+  for (const BinaryType& type : types) {
+    if (type.name == name) return &type;
+  }
+  return nullptr;
+}
 
 // The `size` bytes (at most 8) at `bytes`, in the given byte order, as an
 // unsigned integer.

@@ -142,20 +142,16 @@ class LegacyValues {
   // the type and that the bytes are there, and moves to them.
   void Begin(std::string_view type, long count, std::string_view what) {
     if (!binary_) return;
-    size_ = 0;
-    for (const auto& [name, size, kind] : kTypes) {
-      if (type == name) {
-        size_ = size;
-        kind_ = kind;
-      }
-    }
-    if (size_ == 0) {
+    const BinaryType* found = FindBinaryType(kTypes, type);
+    if (!found) {
       scan_.Fail("the data type '" + std::string(type.substr(0, 40)) + "' of the " +
                  std::string(what) +
                  " cannot be read from a binary file; tetcosim reads char, short, int, long, "
                  "float, double and vtktypeint64 (signed or unsigned); save the file as ASCII "
                  "or .vtu");
     }
+    size_ = found->size;
+    kind_ = found->kind;
     scan_.SkipLine();
     scan_.CheckCount(count, static_cast<size_t>(size_), what);
   }
@@ -188,25 +184,21 @@ class LegacyValues {
   long line() const { return binary_ ? 0 : scan_.line(); }
 
  private:
-  struct Type {
-    std::string_view name;
-    int size;
-    ValueKind kind;
-  };
-  static constexpr std::array<Type, 14> kTypes = {{{"char", 1, ValueKind::kSigned},
-                                                   {"unsigned_char", 1, ValueKind::kUnsigned},
-                                                   {"short", 2, ValueKind::kSigned},
-                                                   {"unsigned_short", 2, ValueKind::kUnsigned},
-                                                   {"int", 4, ValueKind::kSigned},
-                                                   {"unsigned_int", 4, ValueKind::kUnsigned},
-                                                   {"long", 8, ValueKind::kSigned},
-                                                   {"unsigned_long", 8, ValueKind::kUnsigned},
-                                                   {"vtktypeint32", 4, ValueKind::kSigned},
-                                                   {"vtktypeuint32", 4, ValueKind::kUnsigned},
-                                                   {"vtktypeint64", 8, ValueKind::kSigned},
-                                                   {"vtktypeuint64", 8, ValueKind::kUnsigned},
-                                                   {"float", 4, ValueKind::kFloat},
-                                                   {"double", 8, ValueKind::kFloat}}};
+  static constexpr std::array<BinaryType, 14> kTypes = {
+      {{"char", 1, ValueKind::kSigned},
+       {"unsigned_char", 1, ValueKind::kUnsigned},
+       {"short", 2, ValueKind::kSigned},
+       {"unsigned_short", 2, ValueKind::kUnsigned},
+       {"int", 4, ValueKind::kSigned},
+       {"unsigned_int", 4, ValueKind::kUnsigned},
+       {"long", 8, ValueKind::kSigned},
+       {"unsigned_long", 8, ValueKind::kUnsigned},
+       {"vtktypeint32", 4, ValueKind::kSigned},
+       {"vtktypeuint32", 4, ValueKind::kUnsigned},
+       {"vtktypeint64", 8, ValueKind::kSigned},
+       {"vtktypeuint64", 8, ValueKind::kUnsigned},
+       {"float", 4, ValueKind::kFloat},
+       {"double", 8, ValueKind::kFloat}}};
 
   // the next value's bytes (big-endian, as legacy VTK writes them)
   std::uint64_t NextBits(std::string_view what) {

@@ -33,21 +33,16 @@ constexpr long kMaxDeflateRatio = 1032;
 constexpr long kMaxCount = 1L << 40;
 
 // The value types of a DataArray's `type` attribute.
-struct TypeName {
-  const char* name;
-  int size;
-  ValueKind kind;
-};
-constexpr std::array<TypeName, 10> kTypes = {{{"Int8", 1, ValueKind::kSigned},
-                                              {"UInt8", 1, ValueKind::kUnsigned},
-                                              {"Int16", 2, ValueKind::kSigned},
-                                              {"UInt16", 2, ValueKind::kUnsigned},
-                                              {"Int32", 4, ValueKind::kSigned},
-                                              {"UInt32", 4, ValueKind::kUnsigned},
-                                              {"Int64", 8, ValueKind::kSigned},
-                                              {"UInt64", 8, ValueKind::kUnsigned},
-                                              {"Float32", 4, ValueKind::kFloat},
-                                              {"Float64", 8, ValueKind::kFloat}}};
+constexpr std::array<BinaryType, 10> kTypes = {{{"Int8", 1, ValueKind::kSigned},
+                                                {"UInt8", 1, ValueKind::kUnsigned},
+                                                {"Int16", 2, ValueKind::kSigned},
+                                                {"UInt16", 2, ValueKind::kUnsigned},
+                                                {"Int32", 4, ValueKind::kSigned},
+                                                {"UInt32", 4, ValueKind::kUnsigned},
+                                                {"Int64", 8, ValueKind::kSigned},
+                                                {"UInt64", 8, ValueKind::kUnsigned},
+                                                {"Float32", 4, ValueKind::kFloat},
+                                                {"Float64", 8, ValueKind::kFloat}}};
 
 // "<Name>" of an element, for messages (built by appends: g++ 12 warns
 // falsely of overlapping copies in "<" + name + ">")
@@ -305,10 +300,7 @@ class VtuReader {
   template <typename T>
   Values<T> ReadArray(const XMLElement* array, long count, int components, Marks marks = {}) {
     const char* type_text = array->Attribute("type");
-    const TypeName* type = nullptr;
-    for (const TypeName& candidate : kTypes) {
-      if (type_text && std::string_view(type_text) == candidate.name) type = &candidate;
-    }
+    const BinaryType* type = type_text ? FindBinaryType(kTypes, type_text) : nullptr;
     if (!type) {
       Fail(array, ArrayName(array) + " has type '" + std::string(type_text ? type_text : "") +
                       "'; expected one of Int8, UInt8, Int16, UInt16, Int32, UInt32, Int64, "
@@ -316,7 +308,7 @@ class VtuReader {
     }
     if constexpr (std::is_integral_v<T>) {
       if (type->kind == ValueKind::kFloat) {
-        Fail(array, ArrayName(array) + " holds " + type->name +
+        Fail(array, ArrayName(array) + " holds " + std::string(type->name) +
                         " values; cell indices, offsets and types are whole numbers (an Int type)");
       }
     }
