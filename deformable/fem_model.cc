@@ -29,15 +29,14 @@ Eigen::VectorXd ComputeContactAreas(const TetMesh& m) {
   return areas;
 }
 
-double MeanSurfaceVertexArea(const TetMesh& m) {
+double MeanSurfaceVertexArea(const TetMesh& m, const Eigen::VectorXd& contact_areas) {
   // (a surface vertex's contact area is a third of its triangles': they
   // add up to the surface's)
-  const Eigen::VectorXd areas = ComputeContactAreas(m);
   double area = 0.0;
   int surface_vertices = 0;
   for (int v = 0; v < m.num_vertices(); ++v) {
     if (!m.is_surface_vertex(v)) continue;
-    area += areas[v];
+    area += contact_areas[v];
     ++surface_vertices;
   }
   return surface_vertices > 0 ? area / surface_vertices : 0.0;

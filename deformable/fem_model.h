@@ -25,10 +25,11 @@ struct ElementBatch {
 // for interior ones.
 Eigen::VectorXd ComputeContactAreas(const TetMesh& mesh);
 
-// The surface area per surface vertex (m^2): how finely the surface samples
-// contact. A vertex of another mesh pressing into this one stands for at
-// most this much area (see World's contacts).
-double MeanSurfaceVertexArea(const TetMesh& mesh);
+// The surface area per surface vertex (m^2), from the mesh's contact areas
+// (ComputeContactAreas): how finely the surface samples contact. A vertex
+// of another mesh pressing into this one stands for at most this much area
+// (see World's contacts).
+double MeanSurfaceVertexArea(const TetMesh& mesh, const Eigen::VectorXd& contact_areas);
 
 class FemModel {
  public:

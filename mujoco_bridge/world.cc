@@ -414,7 +414,7 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
         scene_contact.stiffness.value_or(DefaultContactPressureStiffness(*model)));
     if (kappa <= 0.0) kappa = DefaultContactPressureStiffness(*model);
     world->kappa_.push_back(kappa);
-    world->mean_surface_area_.push_back(MeanSurfaceVertexArea(*mesh));
+    world->mean_surface_area_.push_back(MeanSurfaceVertexArea(*mesh, model->contact_areas()));
     world->friction_.push_back(
         spec.contact.friction.value_or(scene_contact.friction.value_or(0.5)));
     world->damping_.push_back(spec.contact.damping.value_or(scene_contact.damping.value_or(0.5)));
@@ -519,7 +519,7 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
     proxy->mesh = std::make_shared<TetMesh>(TetMesh::Build(std::move(raw)));
     world->AddLoadWarnings(*proxy->mesh, scene_path, spec.line, "<rigidtet>", spec.file);
     proxy->areas = ComputeContactAreas(*proxy->mesh);
-    proxy->mean_surface_area = MeanSurfaceVertexArea(*proxy->mesh);
+    proxy->mean_surface_area = MeanSurfaceVertexArea(*proxy->mesh, proxy->areas);
     proxy->positions = proxy->mesh->positions();
     world->proxies_.push_back(std::move(proxy));
   }
