@@ -11,8 +11,9 @@ struct Coupling {
   int dof_a = -1;  // first global DoF of A's vertex, or -1
   std::array<int, 4> dof_b{-1, -1, -1, -1};
   Eigen::Vector4d w = Eigen::Vector4d::Zero();
-  Eigen::Matrix3d gain;     // dt^2 K + dt D
-  bool active = true;       // false: released (its force would pull)
+  Eigen::Matrix3d gain;                                // dt^2 K + dt D
+  Eigen::Vector3d Jv_start = Eigen::Vector3d::Zero();  // J v at the start of the step
+  bool active = true;                                  // false: released (its force would pull)
   bool taken_back = false;  // released, then active again: kept from then on
   Eigen::Vector3d Jv(const Eigen::VectorXd& v) const {
     Eigen::Vector3d u = Eigen::Vector3d::Zero();
@@ -127,9 +128,10 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
       }
     }
     coupling.gain = dt * dt * linear[c].stiffness + dt * linear[c].damping;
+    coupling.Jv_start = coupling.Jv(v);
     // dt J^T (f - dt K c + D J v)
     contact_rhs[c] = dt * (linear[c].force - dt * linear[c].stiffness * linear[c].rigid_velocity +
-                           linear[c].damping * coupling.Jv(v));
+                           linear[c].damping * coupling.Jv_start);
   }
 
   // y = A x
@@ -156,7 +158,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   auto integrated_force = [&](size_t c, const Eigen::VectorXd& v_plus) -> Eigen::Vector3d {
     const Eigen::Vector3d Jv_plus = couplings[c].Jv(v_plus);
     return linear[c].force - dt * linear[c].stiffness * (Jv_plus + linear[c].rigid_velocity) -
-           linear[c].damping * (Jv_plus - couplings[c].Jv(v));
+           linear[c].damping * (Jv_plus - couplings[c].Jv_start);
   };
 
   // Rounds of solves, each with the contacts that push (coupled_step.h);
