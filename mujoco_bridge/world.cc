@@ -620,9 +620,11 @@ Eigen::Quaterniond World::RigidBodyOrientation(int body) const {
   return Eigen::Quaterniond(q[0], q[1], q[2], q[3]);
 }
 
+// (mj_objectVelocity gives the velocity of the point it is asked about:
+// for mjOBJ_BODY the centre of mass xipos, for mjOBJ_XBODY the origin xpos)
 Eigen::Vector3d World::RigidBodyLinearVelocity(int body) const {
   double velocity[6];
-  mj_objectVelocity(model_, data_, mjOBJ_BODY, body, velocity, 0);
+  mj_objectVelocity(model_, data_, mjOBJ_XBODY, body, velocity, 0);
   return Eigen::Vector3d(velocity[3], velocity[4], velocity[5]);
 }
 
@@ -642,7 +644,7 @@ int World::DeformableIndex(const std::string& name) const {
 Eigen::Vector3d World::RigidBodyPointVelocity(int body, const Eigen::Vector3d& p) const {
   if (body <= 0) return Eigen::Vector3d::Zero();
   double velocity[6];  // angular, then linear at the body origin xpos, world frame
-  mj_objectVelocity(model_, data_, mjOBJ_BODY, body, velocity, 0);
+  mj_objectVelocity(model_, data_, mjOBJ_XBODY, body, velocity, 0);
   Eigen::Vector3d omega(velocity[0], velocity[1], velocity[2]);
   Eigen::Vector3d v(velocity[3], velocity[4], velocity[5]);
   return v + omega.cross(p - Eigen::Map<const Eigen::Vector3d>(data_->xpos + 3 * body));
@@ -890,8 +892,8 @@ void World::Step() {
       if (attach_body_[i] >= 0) {
         // pins follow the body over this substep (predicted from its velocity)
         int body = attach_body_[i];
-        double velocity[6];
-        mj_objectVelocity(m, d, mjOBJ_BODY, body, velocity, 0);
+        double velocity[6];  // angular, then linear at the body origin xpos
+        mj_objectVelocity(m, d, mjOBJ_XBODY, body, velocity, 0);
         Eigen::Isometry3d X = BodyPose(d, body);
         Eigen::Vector3d omega(velocity[0], velocity[1], velocity[2]);
         double t = settings.dt * (substep + 1);
@@ -997,6 +999,25 @@ Eigen::Vector3d World::LinearMomentum() const {
   return p;
 }
 
+Eigen::Vector3d World::AngularMomentum() const {
+  Eigen::Vector3d L = Eigen::Vector3d::Zero();
+  for (const auto& body : bodies_) L += body->AngularMomentum();
+  for (int b = 1; b < model_->nbody; ++b) {
+    double velocity[6];  // angular, then linear at the centre of mass xipos, world frame
+    mj_objectVelocity(model_, data_, mjOBJ_BODY, b, velocity, 0);
+    const Eigen::Vector3d omega_W(velocity[0], velocity[1], velocity[2]);
+    const Eigen::Vector3d v_WBcm(velocity[3], velocity[4], velocity[5]);
+    const Eigen::Vector3d p_WBcm = Eigen::Map<const Eigen::Vector3d>(data_->xipos + 3 * b);
+    // spin with the principal inertia in the inertial frame I, then orbit
+    const Eigen::Matrix3d R_WI =
+        Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(data_->ximat + 9 * b);
+    const Eigen::Vector3d inertia = Eigen::Map<const Eigen::Vector3d>(model_->body_inertia + 3 * b);
+    L += R_WI * inertia.cwiseProduct(R_WI.transpose() * omega_W) +
+         model_->body_mass[b] * p_WBcm.cross(v_WBcm);
+  }
+  return L;
+}
+
 double World::DeformableKineticEnergy() const {
   double energy = 0.0;
   for (const auto& body : bodies_) energy += body->KineticEnergy();
@@ -1006,13 +1027,10 @@ double World::DeformableKineticEnergy() const {
 double World::RigidKineticEnergy() const {
   double energy = 0.0;
   for (int b = 1; b < model_->nbody; ++b) {
-    double velocity[6];  // angular, then linear at xpos, world frame
+    double velocity[6];  // angular, then linear at the centre of mass xipos, world frame
     mj_objectVelocity(model_, data_, mjOBJ_BODY, b, velocity, 0);
     Eigen::Vector3d omega_W(velocity[0], velocity[1], velocity[2]);
-    Eigen::Vector3d p_WBcm = Eigen::Map<const Eigen::Vector3d>(data_->xipos + 3 * b);
-    Eigen::Vector3d p_WBo = Eigen::Map<const Eigen::Vector3d>(data_->xpos + 3 * b);
-    Eigen::Vector3d v_WBcm =
-        Eigen::Vector3d(velocity[3], velocity[4], velocity[5]) + omega_W.cross(p_WBcm - p_WBo);
+    Eigen::Vector3d v_WBcm(velocity[3], velocity[4], velocity[5]);
     // rotational energy with the principal inertia in the inertial frame I
     Eigen::Matrix3d R_WI =
         Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(data_->ximat + 9 * b);

@@ -129,7 +129,8 @@ class World {
   // Position (xpos) and orientation (xquat, w x y z) of a body, world frame.
   Eigen::Vector3d RigidBodyPosition(int body) const;
   Eigen::Quaterniond RigidBodyOrientation(int body) const;
-  // Linear velocity of the body origin and angular velocity, world frame.
+  // Linear velocity of the body origin (xpos, not the centre of mass) and
+  // angular velocity, world frame.
   Eigen::Vector3d RigidBodyLinearVelocity(int body) const;
   Eigen::Vector3d RigidBodyAngularVelocity(int body) const;
 
@@ -164,12 +165,15 @@ class World {
   // world body), world frame, m/s.
   Eigen::Vector3d RigidBodyPointVelocity(int body, const Eigen::Vector3d& p_W) const;
 
-  // Totals over deformables and MuJoCo bodies (world frame).
+  // Totals over deformables and MuJoCo bodies (world frame; angular momentum
+  // about the world origin).
   Eigen::Vector3d LinearMomentum() const;
+  Eigen::Vector3d AngularMomentum() const;
   double DeformableKineticEnergy() const;
   double RigidKineticEnergy() const;
-  // Forces this world put on each MuJoCo body in the last step (nbody x 6:
-  // torque then force, about xipos, world frame), without the user's.
+  // Forces this world put on each MuJoCo body in the last step (nbody x 6,
+  // laid out as xfrc_applied: force, then torque about xipos; world frame),
+  // without the user's.
   const std::vector<double>& coupling_forces() const { return ours_; }
 
  private:

@@ -249,6 +249,133 @@ TEST(Coupling, CubeRestsOnAFreeBoxWithoutDrift) {
       << "resting on the box top";
 }
 
+// Bodies whose centre of mass is off their frame's origin (offset geoms, a
+// hinge at one end) moving with arbitrary velocities: what the world reports
+// of them agrees with MuJoCo's own kinematics. Oracles: central differences of
+// positions integrated by mj_integratePos (velocities), 1/2 v^T M v through
+// mj_mulM (kinetic energy), the subtree momenta of mj_subtreeVel (momenta).
+TEST(RigidBodies, VelocitiesEnergyAndMomentaAgreeWithMuJoCoOffTheOrigin) {
+  TempDir dir;
+  const std::string path = dir.Write("offset.xml", R"(<mujoco>
+  <option gravity="0 0 0"/>
+  <worldbody>
+    <body name="free" pos="0.3 0.1 0.5" quat="0.9 0.1 0.3 -0.2">
+      <freejoint/>
+      <geom type="box" pos="0.2 -0.1 0.05" size="0.1 0.05 0.02" mass="1"/>
+      <geom type="capsule" fromto="0 0 0 0.05 0.2 0.1" size="0.02" mass="0.4"/>
+    </body>
+    <body name="arm" pos="0 0 1">
+      <joint type="hinge" axis="0.3 1 0.2"/>
+      <geom type="capsule" fromto="0 0 0 0.3 0 -0.1" size="0.02" mass="0.7"/>
+      <body name="forearm" pos="0.3 0 -0.1">
+        <joint type="ball"/>
+        <geom type="box" pos="0.1 0.05 0" size="0.1 0.02 0.02" mass="0.3"/>
+      </body>
+    </body>
+  </worldbody>
+</mujoco>)");
+  std::unique_ptr<World> world = World::Load(path);
+  const mjModel* m = world->mj_model();
+  mjData* d = world->mj_data();
+  ASSERT_EQ(m->nv, 6 + 1 + 3);
+  const double qvel[10] = {0.4, -0.2, 0.3, 2.0, -1.5, 3.0, 2.5, -1.0, 4.0, 0.5};
+  std::copy(qvel, qvel + m->nv, d->qvel);
+  mj_forward(m, d);
+  const std::vector<double> qpos(d->qpos, d->qpos + m->nq);
+
+  // world points moving with each body (its centre of mass, its origin and
+  // one more), at qpos moved by +-h along qvel
+  const Eigen::Vector3d p_B(0.05, -0.2, 0.1);
+  auto points_at = [&](double h) {
+    std::copy(qpos.begin(), qpos.end(), d->qpos);
+    mj_integratePos(m, d->qpos, d->qvel, h);
+    mj_kinematics(m, d);
+    std::vector<Eigen::Vector3d> points;
+    for (int b = 1; b < m->nbody; ++b) {
+      const Eigen::Isometry3d X_WB =
+          Eigen::Translation3d(world->RigidBodyPosition(b)) * world->RigidBodyOrientation(b);
+      points.push_back(world->RigidBodyCenterOfMass(b));
+      points.push_back(X_WB.translation());
+      points.push_back(X_WB * p_B);
+    }
+    return points;
+  };
+  const double h = 1e-6;
+  const std::vector<Eigen::Vector3d> ahead = points_at(h), behind = points_at(-h);
+  const std::vector<Eigen::Vector3d> now = points_at(0.0);
+  mj_forward(m, d);
+  Eigen::Vector3d momentum = Eigen::Vector3d::Zero();
+  for (int b = 1; b < m->nbody; ++b) {
+    const int i = 3 * (b - 1);
+    auto rate = [&](int k) -> Eigen::Vector3d { return (ahead[i + k] - behind[i + k]) / (2 * h); };
+    ASSERT_GT((world->RigidBodyCenterOfMass(b) - world->RigidBodyPosition(b)).norm(), 0.05) << b;
+    for (int k : {0, 2}) {
+      EXPECT_LT((world->RigidBodyPointVelocity(b, now[i + k]) - rate(k)).norm(), 1e-7)
+          << "body " << b << " point " << k << ": " << rate(k).transpose();
+    }
+    EXPECT_LT((world->RigidBodyLinearVelocity(b) - rate(1)).norm(), 1e-7)
+        << "body " << b << " origin: " << rate(1).transpose();
+    momentum += m->body_mass[b] * rate(0);
+  }
+  std::vector<double> Mv(m->nv);
+  mj_mulM(m, d, Mv.data(), d->qvel);
+  EXPECT_NEAR(world->RigidKineticEnergy(), 0.5 * mju_dot(d->qvel, Mv.data(), m->nv), 1e-12);
+  EXPECT_LT((world->LinearMomentum() - momentum).norm(), 1e-7);
+  mj_subtreeVel(m, d);
+  const Eigen::Vector3d com(d->subtree_com), linvel(d->subtree_linvel);
+  const Eigen::Vector3d spin(d->subtree_angmom);
+  EXPECT_LT((world->LinearMomentum() - m->body_subtreemass[0] * linvel).norm(), 1e-12);
+  EXPECT_LT((world->AngularMomentum() - (spin + m->body_subtreemass[0] * com.cross(linvel))).norm(),
+            1e-12);
+}
+
+// Vertices attached to a body spinning about a hinge through its origin, its
+// centre of mass 20 cm off the axis: they stay where the body carries them
+// (the pins are moved with the velocity of the body's origin, not of its
+// centre of mass).
+TEST(Coupling, AttachedVerticesFollowABodySpinningAboutItsOrigin) {
+  TempDir dir;
+  const std::string path = dir.Write("spin.xml", R"(<mujoco>
+  <option timestep="0.001" gravity="0 0 0"/>
+  <worldbody>
+    <body name="wheel" pos="0 0 0.5">
+      <joint type="hinge" axis="0 0 1"/>
+      <geom type="box" pos="0.2 0 0" size="0.05 0.05 0.05" mass="5"/>
+    </body>
+  </worldbody>
+  <deformable>
+    <tetbody name="pad" shape="box" size="0.02 0.02 0.02" resolution="2" pos="0.2 0 0.57"
+             young="1e5"/>
+    <attach tetbody="pad" body="wheel" box="0.15 -0.05 0.54 0.25 0.05 0.56"/>
+  </deformable>
+</mujoco>)");
+  std::unique_ptr<World> world = World::Load(path);
+  const int wheel = world->BodyId("wheel");
+  world->mj_data()->qvel[0] = 3.0;  // rad/s
+  mj_forward(world->mj_model(), world->mj_data());
+  auto pose = [&] {
+    return Eigen::Translation3d(world->RigidBodyPosition(wheel)) *
+           world->RigidBodyOrientation(wheel);
+  };
+  const DeformableBody& pad = world->deformable(0);
+  ASSERT_EQ(pad.pinned_vertices().size(), 9u);
+  std::vector<Eigen::Vector3d> p_B;  // in the wheel's frame
+  for (int v : pad.pinned_vertices()) {
+    p_B.push_back(pose().inverse() * Eigen::Vector3d(pad.positions().row(v).transpose()));
+  }
+  double error = 0.0;
+  for (int s = 0; s < 300; ++s) {
+    world->Step();
+    ASSERT_EQ(world->metrics().status, StepStatus::kOk) << world->metrics().message;
+    for (size_t k = 0; k < p_B.size(); ++k) {
+      const Eigen::Vector3d x = pad.positions().row(pad.pinned_vertices()[k]).transpose();
+      error = std::max(error, (x - pose() * p_B[k]).norm());
+    }
+  }
+  EXPECT_GT(world->RigidBodyAngularVelocity(wheel).z(), 2.5) << "still spinning";
+  EXPECT_LT(error, 1e-5) << "m, largest distance of a pin from its place on the body";
+}
+
 // A proxy of a static body (a table welded to the world) is placed once and handed to
 // the penetration solver as fixed; a proxy of a moving body (the crate) is
 // placed every step and is not. The table's proxy stays where its body is,
