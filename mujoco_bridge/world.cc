@@ -650,6 +650,37 @@ Eigen::Vector3d World::RigidBodyPointVelocity(int body, const Eigen::Vector3d& p
   return v + omega.cross(p - Eigen::Map<const Eigen::Vector3d>(data_->xpos + 3 * body));
 }
 
+// Where a deformable's momentum changes in a step, x0 x dp about the
+// world origin, x0 its positions at the step's start (backward Euler moves
+// a vertex by dt times its new velocity): a reaction applied at those
+// points, as MuJoCo applies it about the centre of mass at the step's start,
+// leaves the total angular momentum exactly unchanged.
+void World::KeepReactionPoints() {
+  reaction_points_.clear();
+  for (size_t c = 0; c < contacts_.size(); ++c) {
+    if (contact_rigid_body_[c] < 0) continue;
+    const ContactPoint& contact = contacts_[c];
+    if (contact.body_a >= 0) {
+      reaction_points_.push_back(bodies_[contact.body_a]->positions().row(contact.vertex_a));
+      continue;
+    }
+    // a proxy vertex inside a deformable: its place in the containing tetrahedron
+    const DeformableBody& body = *bodies_[contact.body_b];
+    const auto tet = body.mesh().tets().row(contact.tet_b);
+    Eigen::Vector3d point = Eigen::Vector3d::Zero();
+    for (int k = 0; k < 4; ++k) {
+      point += contact.barycentric_b[k] * body.positions().row(tet[k]).transpose();
+    }
+    reaction_points_.push_back(point);
+  }
+  for (size_t i = 0; i < bodies_.size(); ++i) {
+    if (attach_body_[i] < 0) continue;
+    for (int v : bodies_[i]->pinned_vertices()) {
+      reaction_points_.push_back(bodies_[i]->positions().row(v));
+    }
+  }
+}
+
 // force at a world point -> force and torque about the centre of mass xipos
 void World::AddRigidForce(int body, const Eigen::Vector3d& point, const Eigen::Vector3d& force) {
   if (body <= 0) return;  // the world body does not move
@@ -905,6 +936,7 @@ void World::Step() {
       }
     }
     metrics_.collision_ms += MillisecondsSince(phase);
+    KeepReactionPoints();
     phase = Clock::now();
     ContactSettings contact_settings = contact_settings_;
     CoupledStepReport report = StepCoupled(bodies, contacts_, contact_settings, settings);
@@ -919,34 +951,20 @@ void World::Step() {
       metrics_.message = message.str();
       return;
     }
-    // reactions on the rigid bodies, averaged over substeps
+    // reactions on the rigid bodies, averaged over substeps, at the points
+    // kept before the step
+    size_t point = 0;
     for (size_t c = 0; c < contacts_.size(); ++c) {
-      const ContactPoint& contact = contacts_[c];
       const int body = contact_rigid_body_[c];
       if (body < 0) continue;
-      Eigen::Vector3d point =
-          contact.body_a >= 0
-              ? Eigen::Vector3d(
-                    bodies_[contact.body_a]->positions().row(contact.vertex_a).transpose())
-              : Eigen::Vector3d::Zero();
-      if (contact.body_a < 0) {
-        // a proxy vertex inside a deformable: the proxy body gets the force on A
-        const auto tet = bodies_[contact.body_b]->mesh().tets().row(contact.tet_b);
-        for (int k = 0; k < 4; ++k) {
-          point += contact.barycentric_b[k] *
-                   bodies_[contact.body_b]->positions().row(tet[k]).transpose();
-        }
-        AddRigidForce(body, point, contact.force / substeps);
-      } else {
-        AddRigidForce(body, point, -contact.force / substeps);
-      }
+      // (a proxy vertex inside a deformable, A: the proxy's body gets the force on A)
+      const double sign = contacts_[c].body_a < 0 ? 1.0 : -1.0;
+      AddRigidForce(body, reaction_points_[point++], sign * contacts_[c].force / substeps);
     }
     for (size_t i = 0; i < bodies_.size(); ++i) {
       if (attach_body_[i] < 0) continue;
-      const DeformableBody& body = *bodies_[i];
-      for (size_t k = 0; k < body.pinned_vertices().size(); ++k) {
-        AddRigidForce(attach_body_[i], body.positions().row(body.pinned_vertices()[k]).transpose(),
-                      -body.pin_forces()[k] / substeps);
+      for (const Eigen::Vector3d& pin_force : bodies_[i]->pin_forces()) {
+        AddRigidForce(attach_body_[i], reaction_points_[point++], -pin_force / substeps);
       }
     }
     for (const ContactPoint& contact : contacts_) {

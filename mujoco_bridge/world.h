@@ -193,6 +193,9 @@ class World {
   // for every deformable vertex inside a primitive geom without a proxy
   void ForEachGeomPenetration(
       const std::function<void(int, int, int, double, const Eigen::Vector3d&)>& visit) const;
+  // Before a step: where the reactions of the contacts with MuJoCo bodies,
+  // then of the pins, will act (reaction_points_).
+  void KeepReactionPoints();
   void AddRigidForce(int body, const Eigen::Vector3d& point, const Eigen::Vector3d& force);
 
   SceneSpec scene_;
@@ -213,10 +216,11 @@ class World {
   std::vector<CollisionObject> objects_;
   std::vector<ContactPoint> contacts_;
   std::vector<int> contact_rigid_body_;  // per contact: MuJoCo body on the rigid side, or -1
-  std::vector<double> ours_;             // nbody x 6, written last step
-  std::vector<double> user_;             // nbody x 6, the user's part of xfrc_applied
-  std::vector<double> written_;          // nbody x 6, xfrc_applied as written last step
-  std::vector<double> accumulated_;      // nbody x 6, this step
+  std::vector<Eigen::Vector3d> reaction_points_;  // see KeepReactionPoints
+  std::vector<double> ours_;                      // nbody x 6, written last step
+  std::vector<double> user_;                      // nbody x 6, the user's part of xfrc_applied
+  std::vector<double> written_;                   // nbody x 6, xfrc_applied as written last step
+  std::vector<double> accumulated_;               // nbody x 6, this step
   std::function<void(World&)> controller_;
   StepSettings step_settings_;
   ContactSettings contact_settings_;
