@@ -21,7 +21,7 @@ ContactLinearization LinearizeContact(std::span<DeformableBody* const> bodies,
     const DeformableBody& a = *bodies[contact.body_a];
     v_a = a.velocities().row(contact.vertex_a).transpose();
     m_a = a.model().masses()[contact.vertex_a];
-  } else {
+  } else if (contact.rigid_point < 0) {
     out.rigid_velocity += contact.velocity_a;
   }
   Eigen::Vector3d v_b = contact.velocity_b;
@@ -35,7 +35,7 @@ ContactLinearization LinearizeContact(std::span<DeformableBody* const> bodies,
       v_b += contact.barycentric_b[i] * b.velocities().row(vertex).transpose();
       m_b += contact.barycentric_b[i] * b.model().masses()[vertex];
     }
-  } else {
+  } else if (contact.rigid_point < 0) {
     out.rigid_velocity -= contact.velocity_b;
   }
   // reduced mass (a side without mass is infinitely heavy)

@@ -37,6 +37,11 @@ struct ContactPoint {
   Eigen::Vector4d barycentric_b = Eigen::Vector4d::Zero();
   Eigen::Vector3d velocity_b = Eigen::Vector3d::Zero();  // m/s, rigid or static B only
   double mass_b = 0.0;  // kg, rigid B only (<= 0: infinite, static)
+  // The rigid side (A or B) solved with the step: its entry in
+  // RigidSystem::points (coupled_step.h), whose velocities are unknowns of
+  // the step like the deformables'; -1: the rigid side keeps velocity_a or
+  // velocity_b through the step and takes the force after it.
+  int rigid_point = -1;
   // geometry and material
   double depth = 0.0;                                    // m, >= 0
   Eigen::Vector3d direction = Eigen::Vector3d::UnitZ();  // unit, out of B
@@ -53,7 +58,8 @@ struct ContactSettings {
 
 // A contact's force at the current state and its derivatives (see above),
 // with the relative velocity at the contact and the constant part of it
-// that comes from rigid or static sides.
+// that comes from rigid or static sides (not from a rigid side solved with
+// the step, rigid_point >= 0).
 struct ContactLinearization {
   Eigen::Vector3d force;              // on A
   Eigen::Matrix3d stiffness;          // -df/dx (relative position)

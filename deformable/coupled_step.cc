@@ -6,11 +6,15 @@
 namespace tetcosim {
 namespace {
 
-// a contact's coupling: u = J v + c, J = [+1 at A's vertex, -w_i at B's]
+// a contact's coupling: u = J v + c, J = [+1 at A's vertex, -w_i at B's,
+// +-J_r on a rigid side's tree]
 struct Coupling {
   int dof_a = -1;  // first global DoF of A's vertex, or -1
   std::array<int, 4> dof_b{-1, -1, -1, -1};
   Eigen::Vector4d w = Eigen::Vector4d::Zero();
+  int rigid_offset = -1;  // first global DoF of a rigid side's tree, or -1
+  const Eigen::Matrix<double, 3, Eigen::Dynamic>* rigid_jacobian = nullptr;
+  double rigid_sign = 0.0;                             // +1: the rigid side is A, -1: B
   Eigen::Matrix3d gain;                                // dt^2 K + dt D
   Eigen::Vector3d Jv_start = Eigen::Vector3d::Zero();  // J v at the start of the step
   bool active = true;                                  // false: released (its force would pull)
@@ -21,12 +25,19 @@ struct Coupling {
     for (int i = 0; i < 4; ++i) {
       if (dof_b[i] >= 0) u -= w[i] * v.segment<3>(dof_b[i]);
     }
+    if (rigid_jacobian) {
+      u += rigid_sign * (*rigid_jacobian) * v.segment(rigid_offset, rigid_jacobian->cols());
+    }
     return u;
   }
   void AddJt(const Eigen::Vector3d& g, Eigen::VectorXd& y) const {
     if (dof_a >= 0) y.segment<3>(dof_a) += g;
     for (int i = 0; i < 4; ++i) {
       if (dof_b[i] >= 0) y.segment<3>(dof_b[i]) -= w[i] * g;
+    }
+    if (rigid_jacobian) {
+      y.segment(rigid_offset, rigid_jacobian->cols()) +=
+          rigid_sign * rigid_jacobian->transpose() * g;
     }
   }
 };
@@ -74,21 +85,37 @@ int ConjugateGradients(const Multiply& multiply, const Precondition& preconditio
 
 CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
                               std::span<ContactPoint> contacts,
-                              const ContactSettings& contact_settings,
-                              const StepSettings& settings) {
+                              const ContactSettings& contact_settings, const StepSettings& settings,
+                              RigidSystem* rigid) {
   settings.Validate();
   const double dt = settings.dt;
   const int num_bodies = static_cast<int>(bodies.size());
   std::vector<int> offset(num_bodies + 1, 0);
   for (int k = 0; k < num_bodies; ++k) offset[k + 1] = offset[k] + 3 * bodies[k]->num_vertices();
-  const int n = offset[num_bodies];
+  // the rigid trees' DoFs follow the deformables'
+  const int num_trees = rigid ? static_cast<int>(rigid->trees.size()) : 0;
+  std::vector<int> tree_offset(num_trees + 1, offset[num_bodies]);
+  for (int t = 0; t < num_trees; ++t) {
+    tree_offset[t + 1] = tree_offset[t] + static_cast<int>(rigid->trees[t].velocity.size());
+  }
+  const int n = tree_offset[num_trees];
 
   // bodies' own systems and current velocities; the 3 x 3 diagonal blocks of
   // the system, per vertex, for a block-Jacobi preconditioner
   Eigen::VectorXd v(n), b(n);
-  std::vector<Eigen::Matrix3d> blocks(static_cast<size_t>(n / 3));
+  std::vector<Eigen::Matrix3d> blocks(static_cast<size_t>(offset[num_bodies] / 3));
   std::vector<char> pinned(n, 0);
-  Eigen::VectorXd delta(n);
+  Eigen::VectorXd delta = Eigen::VectorXd::Zero(n);
+  // a rigid tree: M q+ = M q + impulse + its contacts' share; its
+  // preconditioner block, the whole tree's
+  std::vector<Eigen::MatrixXd> tree_blocks(num_trees);
+  for (int t = 0; t < num_trees; ++t) {
+    const RigidTree& tree = rigid->trees[t];
+    const Eigen::Index size = tree.velocity.size();
+    v.segment(tree_offset[t], size) = tree.velocity;
+    b.segment(tree_offset[t], size) = tree.mass * tree.velocity + tree.impulse;
+    tree_blocks[t] = tree.mass;
+  }
   for (int k = 0; k < num_bodies; ++k) {
     DeformableBody& body = *bodies[k];
     body.PrepareStep(settings);
@@ -127,6 +154,12 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
         coupling.w[i] = contact.barycentric_b[i];
       }
     }
+    if (contact.rigid_point >= 0) {
+      const RigidPoint& point = rigid->points[static_cast<size_t>(contact.rigid_point)];
+      coupling.rigid_offset = tree_offset[point.tree];
+      coupling.rigid_jacobian = &point.jacobian;
+      coupling.rigid_sign = contact.body_a < 0 ? 1.0 : -1.0;
+    }
     coupling.gain = dt * dt * linear[c].stiffness + dt * linear[c].damping;
     coupling.Jv_start = coupling.Jv(v);
     // dt J^T (f - dt K c + D J v)
@@ -138,6 +171,11 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   auto multiply = [&](const Eigen::VectorXd& x, Eigen::VectorXd& y) {
     for (int k = 0; k < num_bodies; ++k) {
       bodies[k]->MultiplySystem(x.data() + offset[k], y.data() + offset[k]);
+    }
+    for (int t = 0; t < num_trees; ++t) {
+      const Eigen::MatrixXd& mass = rigid->trees[t].mass;
+      y.segment(tree_offset[t], mass.rows()).noalias() =
+          mass * x.segment(tree_offset[t], mass.rows());
     }
     for (const Coupling& coupling : couplings) {
       if (coupling.active) coupling.AddJt(coupling.gain * coupling.Jv(x), y);
@@ -151,6 +189,10 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   Eigen::VectorXd momentum(n);
   for (int k = 0; k < num_bodies; ++k) {
     bodies[k]->MultiplyMass(v.data() + offset[k], momentum.data() + offset[k]);
+  }
+  for (int t = 0; t < num_trees; ++t) {
+    const Eigen::MatrixXd& mass = rigid->trees[t].mass;
+    momentum.segment(tree_offset[t], mass.rows()) = mass * v.segment(tree_offset[t], mass.rows());
   }
   filter(momentum);
 
@@ -181,10 +223,17 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     // the active contacts' forces into b, gains into the diagonal
     b = body_rhs;
     blocks = body_blocks;
+    std::vector<Eigen::MatrixXd> tree_inverses = tree_blocks;
     for (size_t c = 0; c < contacts.size(); ++c) {
       const Coupling& coupling = couplings[c];
       if (!coupling.active) continue;
       coupling.AddJt(contact_rhs[c], b);
+      if (coupling.rigid_jacobian) {
+        const auto& J = *coupling.rigid_jacobian;
+        tree_inverses[static_cast<size_t>(
+            rigid->points[static_cast<size_t>(contacts[c].rigid_point)].tree)] +=
+            J.transpose() * coupling.gain * J;
+      }
       if (coupling.dof_a >= 0) blocks[static_cast<size_t>(coupling.dof_a / 3)] += coupling.gain;
       for (int i = 0; i < 4; ++i) {
         if (coupling.dof_b[i] >= 0) {
@@ -199,19 +248,29 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
       // symmetric positive definite (mass + PSD terms): invert directly
       block = block.inverse().eval();
     }
+    for (Eigen::MatrixXd& block : tree_inverses) {
+      block = block.ldlt().solve(Eigen::MatrixXd::Identity(block.rows(), block.cols())).eval();
+    }
     auto precondition = [&](const Eigen::VectorXd& x, Eigen::VectorXd& y) {
       for (size_t i = 0; i < blocks.size(); ++i) {
         y.segment<3>(3 * static_cast<Eigen::Index>(i)) =
             blocks[i] * x.segment<3>(3 * static_cast<Eigen::Index>(i));
       }
+      for (int t = 0; t < num_trees; ++t) {
+        const Eigen::MatrixXd& inverse = tree_inverses[static_cast<size_t>(t)];
+        y.segment(tree_offset[t], inverse.rows()).noalias() =
+            inverse * x.segment(tree_offset[t], inverse.rows());
+      }
     };
     // the tolerance is relative to this step's impulse, b - (1 + dt alpha)
     // M v (what the forces add to the momentum), which needs no product
-    // with A; floored at a millionth of the momentum for a body on which
-    // nothing acts
+    // with A; floored at a millionth of the deformables' momentum for a
+    // body on which nothing acts (not the rigid trees': a heavy fast body's
+    // would loosen every contact's solve)
     Eigen::VectorXd impulse = b - momentum;
     filter(impulse);
-    const double reference = std::max(impulse.norm(), 1e-6 * momentum.norm());
+    const double reference =
+        std::max(impulse.norm(), 1e-6 * momentum.head(offset[num_bodies]).norm());
     const double threshold = (precise ? settings.cg_tolerance : kSettlingTolerance) * reference;
     report.iterations += ConjugateGradients(multiply, precondition, filter, b, threshold,
                                             settings.cg_max_iterations, v_new, Av_new, r);
@@ -244,6 +303,10 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     report.rounds = round + 2;
   }
 
+  for (int t = 0; t < num_trees; ++t) {
+    RigidTree& tree = rigid->trees[t];
+    tree.velocity_end = v_new.segment(tree_offset[t], tree.velocity.size());
+  }
   // the pin residuals
   const Eigen::VectorXd residual = Av_new - b;
   for (int k = 0; k < num_bodies; ++k) {

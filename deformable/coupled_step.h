@@ -4,8 +4,10 @@
 // contacts, solved as one linear system so that contact forces stay exactly
 // equal and opposite (total momentum is conserved up to the solver's
 // tolerance). Each contact c couples the relative velocity at the contact,
-//   u_c = J_c v + c_c   (A's vertex minus B's barycentric point; c_c holds a
-//                        rigid side's known point velocity),
+//   u_c = J_c v + c_c   (A's vertex minus B's barycentric point, a rigid
+//                        side solved with the step (RigidSystem below) as
+//                        its point's J_r q; c_c holds the known point
+//                        velocity of a rigid side that is not),
 // and its force is integrated as
 //   f_c(v+) = f_c - K_c dt u_c(v+) - D_c (J_c v+ - J_c v),
 // giving
@@ -31,6 +33,7 @@
 // zero if released).
 
 #include <span>
+#include <vector>
 
 #include "deformable/contact.h"
 #include "deformable/deformable_body.h"
@@ -47,14 +50,46 @@ struct CoupledStepReport {
   int released_contacts = 0;
 };
 
+// Rigid bodies solved with the step. A rigid side that keeps its velocity
+// through the step and takes the integrated force after it (explicit) is
+// stable only while dt sqrt(k / m) stays below about 2 for the contact's
+// stiffness k and the body's mass m at the point, which a stiff body's
+// contacts or the smooth friction law's steep slope (mu f_n / v_s) on a
+// light body break: a rigid ball on a stiff slab flew off. Here the rigid
+// bodies' generalized velocities (a free body's six, a mechanism's joint
+// velocities) are unknowns of the same system, tree by tree, with the
+// tree's block of the mass matrix; a contact's rigid point moves at J x.
+// The step then integrates each contact's force implicitly on both sides;
+// the caller applies it to the rigid bodies (their own solver steps them,
+// with whatever else acts on them, which the prediction here leaves out
+// beyond `impulse`).
+struct RigidTree {
+  Eigen::MatrixXd mass;          // n x n (n: the tree's degrees of freedom), positive definite
+  Eigen::VectorXd velocity;      // n, at the step's start
+  Eigen::VectorXd impulse;       // n, dt x the other generalized forces (gravity, bias, springs)
+  Eigen::VectorXd velocity_end;  // out: n, at the step's end as the step predicts it
+};
+struct RigidPoint {
+  int tree = -1;
+  // 3 x n: the world velocity of the contact's point on the body from the
+  // tree's generalized velocities
+  Eigen::Matrix<double, 3, Eigen::Dynamic> jacobian;
+};
+struct RigidSystem {
+  std::vector<RigidTree> trees;
+  std::vector<RigidPoint> points;  // ContactPoint::rigid_point indexes this
+};
+
 // Solves per step at most: after the last, contacts are kept as they are.
 inline constexpr int kMaxContactRounds = 8;
 // The relative residual of the solves that only settle which contacts push.
 inline constexpr double kSettlingTolerance = 1e-3;
 
+// `rigid` (may be null) holds the trees and points of contacts with
+// rigid_point >= 0.
 CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
                               std::span<ContactPoint> contacts,
-                              const ContactSettings& contact_settings,
-                              const StepSettings& settings);
+                              const ContactSettings& contact_settings, const StepSettings& settings,
+                              RigidSystem* rigid = nullptr);
 
 }  // namespace tetcosim

@@ -217,8 +217,15 @@ class SceneParser {
           }
           ContactAttributes(child, scene.contact);
         } else if (kind == "solver") {
-          CheckAttributes(child, {"substeps", "linear", "tolerance", "maxiter"});
+          CheckAttributes(child, {"substeps", "linear", "tolerance", "maxiter", "rigid"});
           scene.solver.substeps = static_cast<int>(Number(child, "substeps", 1, 1000).value_or(1));
+          if (const char* rigid = child->Attribute("rigid")) {
+            const std::string r(rigid);
+            if (r != "implicit" && r != "explicit") {
+              Fail(child, "rigid must be implicit or explicit");
+            }
+            scene.solver.implicit_rigid = r == "implicit";
+          }
           if (const char* linear = child->Attribute("linear")) {
             std::string l(linear);
             if (l == "cg") {

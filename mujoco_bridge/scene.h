@@ -61,6 +61,9 @@ struct AttachSpec {
 
 struct SolverSpec {
   int substeps = 1;
+  // MuJoCo bodies in contact solved with the deformables' step (implicit on
+  // both sides), or moving at their start velocity through it (explicit)
+  bool implicit_rigid = true;
   LinearSolver linear_solver = LinearSolver::kConjugateGradient;
   double tolerance = 1e-6;
   int max_iterations = 1000;

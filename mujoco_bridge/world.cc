@@ -566,6 +566,21 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
     world->attach_body_[index] = body;
   }
 
+  // each tree's degrees of freedom (MuJoCo numbers them body by body, bodies
+  // depth first: a tree's are consecutive), by the tree's root body
+  world->tree_first_dof_.assign(m->nbody, -1);
+  world->tree_num_dofs_.assign(m->nbody, 0);
+  for (int dof = 0; dof < m->nv; ++dof) {
+    const int root = m->body_rootid[m->dof_bodyid[dof]];
+    if (world->tree_first_dof_[root] < 0) world->tree_first_dof_[root] = dof;
+    if (world->tree_first_dof_[root] + world->tree_num_dofs_[root] != dof) {
+      throw Error(scene_path + ": MuJoCo's degrees of freedom of the tree of body '" +
+                  world->RigidBodyName(root) +
+                  "' are not consecutive, which tetcosim relies on; please report this scene");
+    }
+    ++world->tree_num_dofs_[root];
+  }
+  world->tree_slot_.assign(m->nbody, -1);
   world->ours_.assign(6 * m->nbody, 0.0);
   world->user_.assign(6 * m->nbody, 0.0);
   world->written_.assign(6 * m->nbody, 0.0);
@@ -678,6 +693,77 @@ void World::KeepReactionPoints() {
     for (int v : bodies_[i]->pinned_vertices()) {
       reaction_points_.push_back(bodies_[i]->positions().row(v));
     }
+  }
+}
+
+// The trees of the MuJoCo bodies in contact this substep, and each contact's
+// point on its body, for the coupled step to solve with the deformables
+// (coupled_step.h, RigidSystem): the tree's block of MuJoCo's mass matrix,
+// its velocities, and dt times the generalized forces that act on it
+// besides the contacts: gravity and bias, passive forces, actuators, the
+// user's applied forces, and MuJoCo's constraint forces of the last step
+// (mj_step2 finds this step's after; the last step's keep a box that a
+// floor holds up, under a body resting on it, at rest in the prediction).
+void World::BuildRigidSystem(double dt) {
+  const mjModel* m = model_;
+  mjData* d = data_;
+  for (size_t t = 0; t < rigid_.trees.size(); ++t) tree_slot_[rigid_roots_[t]] = -1;
+  rigid_roots_.clear();
+  rigid_.trees.clear();
+  rigid_.points.clear();
+  if (!scene_.solver.implicit_rigid) return;
+  bool forces_ready = false;
+  size_t point = 0;
+  for (size_t c = 0; c < contacts_.size(); ++c) {
+    const int body = contact_rigid_body_[c];
+    if (body < 0) continue;
+    const Eigen::Vector3d& p_W = reaction_points_[point++];
+    const int root = m->body_rootid[body];
+    const int first = tree_first_dof_[root];
+    const int size = tree_num_dofs_[root];
+    if (size == 0) continue;  // welded to the world, or moved by mocap: its velocity is known
+    if (!forces_ready) {
+      // the generalized forces besides ours: MuJoCo's actuators now (mj_step2
+      // computes them again from the same state), the user's body forces,
+      // the rest as MuJoCo holds them
+      mj_fwdActuation(m, d);
+      other_forces_.assign(m->nv, 0.0);
+      for (int b = 1; b < m->nbody; ++b) {
+        const double* user = user_.data() + 6 * b;
+        if (std::all_of(user, user + 6, [](double x) { return x == 0.0; })) continue;
+        mj_applyFT(m, d, user, user + 3, d->xipos + 3 * b, b, other_forces_.data());
+      }
+      for (int i = 0; i < m->nv; ++i) {
+        other_forces_[i] += d->qfrc_passive[i] - d->qfrc_bias[i] + d->qfrc_actuator[i] +
+                            d->qfrc_applied[i] + d->qfrc_constraint[i];
+      }
+      forces_ready = true;
+    }
+    if (tree_slot_[root] < 0) {
+      tree_slot_[root] = static_cast<int>(rigid_.trees.size());
+      rigid_roots_.push_back(root);
+      RigidTree& tree = rigid_.trees.emplace_back();
+      // the tree's block of the mass matrix from MuJoCo's sparse qM: row i
+      // holds M(i, i), then M(i, j) for j = i's parent DoF, its parent, ...
+      tree.mass.setZero(size, size);
+      for (int i = first; i < first + size; ++i) {
+        int address = m->dof_Madr[i];
+        for (int j = i; j >= 0; j = m->dof_parentid[j]) {
+          tree.mass(i - first, j - first) = tree.mass(j - first, i - first) = d->qM[address++];
+        }
+      }
+      tree.velocity = Eigen::Map<const Eigen::VectorXd>(d->qvel + first, size);
+      tree.impulse = dt * Eigen::Map<const Eigen::VectorXd>(other_forces_.data() + first, size);
+    }
+    jacobian_.resize(3 * static_cast<size_t>(m->nv));
+    mj_jac(m, d, jacobian_.data(), nullptr, p_W.data(), body);
+    RigidPoint& rigid_point = rigid_.points.emplace_back();
+    rigid_point.tree = tree_slot_[root];
+    rigid_point.jacobian =
+        Eigen::Map<const Eigen::Matrix<double, 3, Eigen::Dynamic, Eigen::RowMajor>>(
+            jacobian_.data(), 3, m->nv)
+            .middleCols(first, size);
+    contacts_[c].rigid_point = static_cast<int>(rigid_.points.size()) - 1;
   }
 }
 
@@ -937,9 +1023,10 @@ void World::Step() {
     }
     metrics_.collision_ms += MillisecondsSince(phase);
     KeepReactionPoints();
+    BuildRigidSystem(settings.dt);
     phase = Clock::now();
     ContactSettings contact_settings = contact_settings_;
-    CoupledStepReport report = StepCoupled(bodies, contacts_, contact_settings, settings);
+    CoupledStepReport report = StepCoupled(bodies, contacts_, contact_settings, settings, &rigid_);
     metrics_.solver_iterations += report.iterations;
     metrics_.deformable_ms += MillisecondsSince(phase);
     if (report.status != StepStatus::kOk) {

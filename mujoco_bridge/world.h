@@ -143,6 +143,11 @@ class World {
   // first penetrations().size() entries of contacts(), in the same order;
   // contacts with primitive geoms follow.
   const std::vector<PenetrationResult>& penetrations() const { return solver_.results(); }
+  // The MuJoCo trees solved with the last step's deformables (RigidSystem,
+  // coupled_step.h; empty with <solver rigid="explicit">), each by its root
+  // body, with their predicted velocities.
+  const RigidSystem& rigid_system() const { return rigid_; }
+  const std::vector<int>& rigid_system_roots() const { return rigid_roots_; }
   // Per entry of contacts(): the MuJoCo body on the rigid side, or -1.
   const std::vector<int>& contact_rigid_bodies() const { return contact_rigid_body_; }
   // The collision objects of the last step: deformables 0 .. D-1, then the
@@ -196,6 +201,7 @@ class World {
   // Before a step: where the reactions of the contacts with MuJoCo bodies,
   // then of the pins, will act (reaction_points_).
   void KeepReactionPoints();
+  void BuildRigidSystem(double dt);
   void AddRigidForce(int body, const Eigen::Vector3d& point, const Eigen::Vector3d& force);
 
   SceneSpec scene_;
@@ -217,10 +223,19 @@ class World {
   std::vector<ContactPoint> contacts_;
   std::vector<int> contact_rigid_body_;  // per contact: MuJoCo body on the rigid side, or -1
   std::vector<Eigen::Vector3d> reaction_points_;  // see KeepReactionPoints
-  std::vector<double> ours_;                      // nbody x 6, written last step
-  std::vector<double> user_;                      // nbody x 6, the user's part of xfrc_applied
-  std::vector<double> written_;                   // nbody x 6, xfrc_applied as written last step
-  std::vector<double> accumulated_;               // nbody x 6, this step
+  // MuJoCo's trees (by root body): first DoF and count; this substep's
+  // trees in contact (BuildRigidSystem) and each root's slot among them
+  std::vector<int> tree_first_dof_;
+  std::vector<int> tree_num_dofs_;
+  std::vector<int> tree_slot_;
+  std::vector<int> rigid_roots_;
+  RigidSystem rigid_;
+  std::vector<double> jacobian_;      // 3 x nv, row-major
+  std::vector<double> other_forces_;  // nv
+  std::vector<double> ours_;          // nbody x 6, written last step
+  std::vector<double> user_;          // nbody x 6, the user's part of xfrc_applied
+  std::vector<double> written_;       // nbody x 6, xfrc_applied as written last step
+  std::vector<double> accumulated_;   // nbody x 6, this step
   std::function<void(World&)> controller_;
   StepSettings step_settings_;
   ContactSettings contact_settings_;

@@ -48,7 +48,8 @@ VALUES = [
 NAMES = [
     "size", "resolution", "split", "young", "poisson", "density", "damping", "pos", "euler",
     "quat", "scale", "vel", "shape", "file", "name", "body", "geom", "tetbody", "vertices", "box",
-    "sphere", "stiffness", "method", "friction", "substeps", "tolerance", "maxiter", "bogus",
+    "sphere", "stiffness", "method", "friction", "substeps", "tolerance", "maxiter", "rigid",
+    "bogus",
 ]
 STEPS = 30
 TIMEOUT_S = 300

@@ -274,6 +274,72 @@ TEST(DeformableBody, PressedContactsAreKept) {
   EXPECT_GT(body.LinearMomentum().z(), 0.0);
 }
 
+// A rigid side solved with the step (coupled_step.h, RigidSystem): a cube
+// pressed into a rigid plate (a tree of three translational degrees of
+// freedom, z <= 0 its inside) that moves up into it. The plate's rows of the
+// system are Newton's law for its predicted velocity, so the plate's
+// momentum change is exactly the opposite of the contacts' impulse on the
+// cube (to the solver's tolerance) and the total momentum is kept; with a
+// plate of huge mass the forces are those of a plate moving at its start
+// velocity through the step (the explicit path).
+TEST(DeformableBody, RigidSideSolvedWithTheStepTakesTheOppositeImpulse) {
+  auto model = Model("box:size=0.05:res=3", Material{1e5, 0.3, 1000, 0, 0});
+  StepSettings settings;
+  settings.gravity.setZero();
+  settings.cg_tolerance = 1e-12;
+  const Eigen::Vector3d plate_velocity(0.05, 0.0, 0.1);
+  // the forces on the cube's contacts, and the plate's velocity after
+  auto press = [&](double plate_mass, bool with_step, std::vector<ContactPoint>& contacts,
+                   Eigen::Vector3d& cube_momentum_change) -> Eigen::Vector3d {
+    DeformableBody body(model, "box");
+    body.Reset(At({0.0, 0.0, 0.05 - 1e-4}), Eigen::Vector3d::Zero());
+    contacts.clear();
+    AddHalfSpaceContacts(0, body, Eigen::Vector3d::UnitZ(), 0.0,
+                         DefaultContactPressureStiffness(*model), 0.5, contacts);
+    RigidSystem rigid;
+    RigidTree& tree = rigid.trees.emplace_back();
+    tree.mass = plate_mass * Eigen::Matrix3d::Identity();
+    tree.velocity = plate_velocity;
+    tree.impulse = Eigen::Vector3d(0.0, 0.0, -0.01);  // dt x a force pushing it down
+    rigid.points.push_back({0, Eigen::Matrix3d::Identity()});
+    for (ContactPoint& contact : contacts) {
+      contact.velocity_b = plate_velocity;
+      contact.mass_b = plate_mass;
+      if (with_step) contact.rigid_point = 0;
+    }
+    DeformableBody* bodies[1] = {&body};
+    const CoupledStepReport report =
+        StepCoupled(bodies, contacts, ContactSettings{}, settings, with_step ? &rigid : nullptr);
+    EXPECT_EQ(report.status, StepStatus::kOk);
+    EXPECT_EQ(report.released_contacts, 0);
+    cube_momentum_change = body.LinearMomentum();
+    return with_step ? Eigen::Vector3d(tree.velocity_end) : plate_velocity;
+  };
+  const double mass = 0.2;
+  std::vector<ContactPoint> contacts;
+  Eigen::Vector3d cube_change;
+  const Eigen::Vector3d plate_end = press(mass, true, contacts, cube_change);
+  Eigen::Vector3d impulse_on_cube = Eigen::Vector3d::Zero();
+  for (const ContactPoint& contact : contacts) impulse_on_cube += contact.force * settings.dt;
+  const Eigen::Vector3d plate_change = mass * (plate_end - plate_velocity);
+  EXPECT_GT(impulse_on_cube.z(), 0.0);
+  EXPECT_LT((cube_change - impulse_on_cube).norm(), 1e-9 * impulse_on_cube.norm());
+  EXPECT_LT((plate_change - (Eigen::Vector3d(0.0, 0.0, -0.01) - impulse_on_cube)).norm(),
+            1e-9 * impulse_on_cube.norm())
+      << "plate " << plate_change.transpose() << ", cube " << impulse_on_cube.transpose();
+  EXPECT_LT(plate_end.z(), plate_velocity.z()) << "the cube slowed the plate";
+
+  // a plate of 1e12 kg: its velocity does not change, as on the explicit path
+  std::vector<ContactPoint> heavy, kept;
+  Eigen::Vector3d ignored;
+  press(1e12, true, heavy, ignored);
+  press(1e12, false, kept, ignored);
+  ASSERT_EQ(heavy.size(), kept.size());
+  for (size_t c = 0; c < heavy.size(); ++c) {
+    EXPECT_LT((heavy[c].force - kept[c].force).norm(), 1e-8 * kept[c].force.norm()) << c;
+  }
+}
+
 TEST(DeformableBody, StiffCubeAtTenMillisecondsStaysBounded) {
   DropResult r = DropCube("box:size=0.05:res=5", 1e7, 10e-3, 3.0);
   EXPECT_LT(r.max_depth_at_rest, 0.005);

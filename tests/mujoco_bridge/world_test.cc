@@ -90,6 +90,7 @@ TEST(SceneLoading, BadScenesNameTheLine) {
        "named geom"},
       {"<contact method=\"nearest\"/>\n",
        "scene.xml:6: <contact>: method must be consistent or closest"},
+      {"<solver rigid=\"semi\"/>\n", "scene.xml:6: <solver>: rigid must be implicit or explicit"},
       {"<tetbody name=\"a\" shape=\"sphere\" size=\"0.1\"/>\n<attach tetbody=\"zz\" body=\"b\" "
        "vertices=\"0\"/>\n",
        "scene.xml:7: <attach>: no tetbody named 'zz'; the tetbodies: 'a'"},
@@ -441,6 +442,120 @@ TEST(Coupling, AttachedVerticesFollowABodySpinningAboutItsOrigin) {
   EXPECT_LT(error, 1e-5) << "m, largest distance of a pin from its place on the body";
   // the hinge's axis is the world's z axis: nothing turns the whole about it
   EXPECT_NEAR(world->AngularMomentum().z(), L0, 2e-6 * L0);
+}
+
+// A light rigid box (50 g, its proxy) resting on a stiff deformable slab
+// (E = 1e7 Pa, pinned): each proxy vertex's contact is far stiffer than the
+// box's mass allows an explicit step (dt sqrt(k / m) > 2; moved at its start
+// velocity and pushed after the step, the box was thrown a metre up). Solved
+// with the step (RigidSystem), it rests: the contacts carry its weight.
+TEST(Coupling, LightRigidBodyRestsOnAStiffDeformable) {
+  TempDir dir;
+  const std::string path = dir.Write("light.xml", R"(<mujoco>
+  <option timestep="0.001" gravity="0 0 -9.81"/>
+  <worldbody>
+    <body name="anchor"/>
+    <body name="box" pos="0 0 0.0205"><freejoint/>
+      <geom name="box" type="box" size="0.02 0.02 0.02" mass="0.05" contype="0" conaffinity="0"/>
+    </body>
+  </worldbody>
+  <deformable>
+    <contact friction="0.5"/>
+    <rigidtet body="box" geom="box" resolution="3"/>
+    <tetbody name="slab" shape="box" size="0.1 0.1 0.02" resolution="10 10 2" pos="0 0 -0.02"
+             young="1e7"/>
+    <attach tetbody="slab" body="anchor" box="-1 -1 -1 1 1 -0.039"/>
+  </deformable>
+</mujoco>)");
+  std::unique_ptr<World> world = World::Load(path);
+  const int box = world->BodyId("box");
+  double highest = 0.0;
+  for (int s = 0; s < 1000; ++s) {
+    world->Step();
+    ASSERT_EQ(world->metrics().status, StepStatus::kOk) << world->metrics().message;
+    highest = std::max(highest, world->RigidBodyPosition(box).z());
+  }
+  EXPECT_LT(highest, 0.0206) << "m: never thrown up";
+  EXPECT_NEAR(world->RigidBodyPosition(box).z(), 0.02, 1e-4) << "resting on the slab";
+  EXPECT_LT(world->RigidKineticEnergy(), 1e-10);
+  EXPECT_NEAR(world->coupling_forces()[6 * box + 2], 0.05 * 9.81, 1e-4 * 0.05 * 9.81)
+      << "N: the contacts carry the box's weight";
+}
+
+// The same for a mechanism: a light two-link arm on hinges (80 g) lays its
+// hand, a box proxy 2 cm off the lower link's axis, on a stiff slab.
+// Solved with the step (the links' joint velocities, the tree's block of
+// the mass matrix, the hand's point Jacobians), the arm comes to rest; at
+// rest the contacts' moment about each hinge balances the weight of the
+// links beyond it. (Explicit, the arm was thrown about at 1e4 J.)
+TEST(Coupling, LightArmRestsItsHandOnAStiffDeformable) {
+  TempDir dir;
+  const std::string path = dir.Write("arm.xml", R"(<mujoco>
+  <option timestep="0.001" gravity="0 0 -9.81"/>
+  <worldbody>
+    <body name="anchor"/>
+    <body name="upper" pos="-0.2 0 0.06">
+      <joint type="hinge" axis="0 1 0"/>
+      <geom type="capsule" fromto="0 0 0 0.1 0 0" size="0.01" mass="0.05" contype="0"
+            conaffinity="0"/>
+      <body name="lower" pos="0.1 0 0">
+        <joint type="hinge" axis="0 1 0"/>
+        <geom name="hand" type="box" pos="0.05 0 -0.02" size="0.05 0.02 0.02" mass="0.03"
+              contype="0" conaffinity="0"/>
+      </body>
+    </body>
+  </worldbody>
+  <deformable>
+    <contact friction="0.5"/>
+    <solver tolerance="1e-12"/>
+    <rigidtet body="lower" geom="hand" resolution="3"/>
+    <tetbody name="slab" shape="box" size="0.15 0.1 0.02" resolution="15 10 2" pos="0 0 -0.02"
+             young="1e7"/>
+    <attach tetbody="slab" body="anchor" box="-1 -1 -1 1 1 -0.039"/>
+  </deformable>
+</mujoco>)");
+  std::unique_ptr<World> world = World::Load(path);
+  // nothing else acts on the arm (no joint limits, no MuJoCo contacts): the
+  // step's prediction of its joint velocities is what MuJoCo then finds
+  const mjModel* m = world->mj_model();
+  double largest_error = 0.0, largest_speed = 0.0;
+  int solved_with = 0;
+  for (int s = 0; s < 1000; ++s) {
+    world->Step();
+    ASSERT_EQ(world->metrics().status, StepStatus::kOk) << world->metrics().message;
+    const RigidSystem& rigid = world->rigid_system();
+    if (rigid.trees.empty()) continue;
+    ++solved_with;
+    ASSERT_EQ(rigid.trees.size(), 1u);
+    ASSERT_EQ(world->rigid_system_roots()[0], world->BodyId("upper"));
+    const Eigen::Map<const Eigen::VectorXd> qvel(world->mj_data()->qvel, m->nv);
+    largest_error = std::max(largest_error, (rigid.trees[0].velocity_end - qvel).norm());
+    largest_speed = std::max(largest_speed, qvel.norm());
+  }
+  EXPECT_GT(solved_with, 800);
+  EXPECT_GT(largest_speed, 1.0) << "rad/s: the arm fell onto the slab";
+  EXPECT_LT(largest_error, 1e-9 * largest_speed);
+  EXPECT_LT(world->RigidKineticEnergy(), 1e-12);
+  const int upper = world->BodyId("upper"), lower = world->BodyId("lower");
+  EXPECT_NEAR(world->RigidBodyPosition(lower).z(), 0.04, 1e-4) << "the hand on the slab";
+  const Eigen::Vector3d g(0.0, 0.0, -9.81);
+  const double* wrench = world->coupling_forces().data() + 6 * lower;  // force, torque at xipos
+  const Eigen::Vector3d force(wrench), torque(wrench + 3);
+  // moments about the y axis through a point q: the contacts', each link's weight
+  auto contacts_about = [&](const Eigen::Vector3d& q) {
+    return (torque + (world->RigidBodyCenterOfMass(lower) - q).cross(force)).y();
+  };
+  auto weight_about = [&](int body, const Eigen::Vector3d& q) {
+    return (world->RigidBodyCenterOfMass(body) - q)
+        .cross(world->mj_model()->body_mass[body] * g)
+        .y();
+  };
+  const Eigen::Vector3d elbow = world->RigidBodyPosition(lower);
+  const Eigen::Vector3d shoulder = world->RigidBodyPosition(upper);
+  const double scale = std::abs(weight_about(lower, shoulder));
+  EXPECT_NEAR(contacts_about(elbow), -weight_about(lower, elbow), 1e-4 * scale);
+  EXPECT_NEAR(contacts_about(shoulder),
+              -weight_about(lower, shoulder) - weight_about(upper, shoulder), 1e-4 * scale);
 }
 
 // A proxy of a static body (a table welded to the world) is placed once and handed to
