@@ -444,6 +444,27 @@ TEST(Coupling, AttachedVerticesFollowABodySpinningAboutItsOrigin) {
   EXPECT_NEAR(world->AngularMomentum().z(), L0, 2e-6 * L0);
 }
 
+// A scene of `bodies` over a stiff slab (E = 1e7 Pa, 4 cm thick, its top at
+// z = 0, its bottom pinned to a static body) of the given half-sizes and
+// cells in x and y, with `deformable` (proxies, settings) beside it.
+std::string OnAStiffSlab(const std::string& bodies, const std::string& deformable,
+                         const std::string& half_size, const std::string& cells) {
+  return R"(<mujoco>
+  <option timestep="0.001" gravity="0 0 -9.81"/>
+  <worldbody>
+    <body name="anchor"/>)" +
+         bodies + R"(
+  </worldbody>
+  <deformable>
+    <contact friction="0.5"/>)" +
+         deformable + R"(
+    <tetbody name="slab" shape="box" size=")" +
+         half_size + R"( 0.02" resolution=")" + cells + R"( 2" pos="0 0 -0.02" young="1e7"/>
+    <attach tetbody="slab" body="anchor" box="-1 -1 -1 1 1 -0.039"/>
+  </deformable>
+</mujoco>)";
+}
+
 // A light rigid box (50 g, its proxy) resting on a stiff deformable slab
 // (E = 1e7 Pa, pinned): each proxy vertex's contact is far stiffer than the
 // box's mass allows an explicit step (dt sqrt(k / m) > 2; moved at its start
@@ -451,22 +472,13 @@ TEST(Coupling, AttachedVerticesFollowABodySpinningAboutItsOrigin) {
 // with the step (RigidSystem), it rests: the contacts carry its weight.
 TEST(Coupling, LightRigidBodyRestsOnAStiffDeformable) {
   TempDir dir;
-  const std::string path = dir.Write("light.xml", R"(<mujoco>
-  <option timestep="0.001" gravity="0 0 -9.81"/>
-  <worldbody>
-    <body name="anchor"/>
+  const std::string path = dir.Write("light.xml", OnAStiffSlab(R"(
     <body name="box" pos="0 0 0.0205"><freejoint/>
       <geom name="box" type="box" size="0.02 0.02 0.02" mass="0.05" contype="0" conaffinity="0"/>
-    </body>
-  </worldbody>
-  <deformable>
-    <contact friction="0.5"/>
-    <rigidtet body="box" geom="box" resolution="3"/>
-    <tetbody name="slab" shape="box" size="0.1 0.1 0.02" resolution="10 10 2" pos="0 0 -0.02"
-             young="1e7"/>
-    <attach tetbody="slab" body="anchor" box="-1 -1 -1 1 1 -0.039"/>
-  </deformable>
-</mujoco>)");
+    </body>)",
+                                                               R"(
+    <rigidtet body="box" geom="box" resolution="3"/>)",
+                                                               "0.1 0.1", "10 10"));
   std::unique_ptr<World> world = World::Load(path);
   const int box = world->BodyId("box");
   double highest = 0.0;
@@ -490,10 +502,7 @@ TEST(Coupling, LightRigidBodyRestsOnAStiffDeformable) {
 // links beyond it. (Explicit, the arm was thrown about at 1e4 J.)
 TEST(Coupling, LightArmRestsItsHandOnAStiffDeformable) {
   TempDir dir;
-  const std::string path = dir.Write("arm.xml", R"(<mujoco>
-  <option timestep="0.001" gravity="0 0 -9.81"/>
-  <worldbody>
-    <body name="anchor"/>
+  const std::string path = dir.Write("arm.xml", OnAStiffSlab(R"(
     <body name="upper" pos="-0.2 0 0.06">
       <joint type="hinge" axis="0 1 0"/>
       <geom type="capsule" fromto="0 0 0 0.1 0 0" size="0.01" mass="0.05" contype="0"
@@ -503,17 +512,11 @@ TEST(Coupling, LightArmRestsItsHandOnAStiffDeformable) {
         <geom name="hand" type="box" pos="0.05 0 -0.02" size="0.05 0.02 0.02" mass="0.03"
               contype="0" conaffinity="0"/>
       </body>
-    </body>
-  </worldbody>
-  <deformable>
-    <contact friction="0.5"/>
+    </body>)",
+                                                             R"(
     <solver tolerance="1e-12"/>
-    <rigidtet body="lower" geom="hand" resolution="3"/>
-    <tetbody name="slab" shape="box" size="0.15 0.1 0.02" resolution="15 10 2" pos="0 0 -0.02"
-             young="1e7"/>
-    <attach tetbody="slab" body="anchor" box="-1 -1 -1 1 1 -0.039"/>
-  </deformable>
-</mujoco>)");
+    <rigidtet body="lower" geom="hand" resolution="3"/>)",
+                                                             "0.15 0.1", "15 10"));
   std::unique_ptr<World> world = World::Load(path);
   // nothing else acts on the arm (no joint limits, no MuJoCo contacts): the
   // step's prediction of its joint velocities is what MuJoCo then finds
