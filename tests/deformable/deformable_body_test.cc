@@ -288,6 +288,7 @@ TEST(DeformableBody, RigidSideSolvedWithTheStepTakesTheOppositeImpulse) {
   settings.gravity.setZero();
   settings.cg_tolerance = 1e-12;
   const Eigen::Vector3d plate_velocity(0.05, 0.0, 0.1);
+  const Eigen::Vector3d plate_impulse(0.0, 0.0, -0.01);  // dt x a force pushing it down
   // the forces on the cube's contacts, and the plate's velocity after
   auto press = [&](double plate_mass, bool with_step, std::vector<ContactPoint>& contacts,
                    Eigen::Vector3d& cube_momentum_change) -> Eigen::Vector3d {
@@ -300,7 +301,7 @@ TEST(DeformableBody, RigidSideSolvedWithTheStepTakesTheOppositeImpulse) {
     RigidTree& tree = rigid.trees.emplace_back();
     tree.mass = plate_mass * Eigen::Matrix3d::Identity();
     tree.velocity = plate_velocity;
-    tree.impulse = Eigen::Vector3d(0.0, 0.0, -0.01);  // dt x a force pushing it down
+    tree.impulse = plate_impulse;
     rigid.points.push_back({0, Eigen::Matrix3d::Identity()});
     for (ContactPoint& contact : contacts) {
       contact.velocity_b = plate_velocity;
@@ -324,7 +325,7 @@ TEST(DeformableBody, RigidSideSolvedWithTheStepTakesTheOppositeImpulse) {
   const Eigen::Vector3d plate_change = mass * (plate_end - plate_velocity);
   EXPECT_GT(impulse_on_cube.z(), 0.0);
   EXPECT_LT((cube_change - impulse_on_cube).norm(), 1e-9 * impulse_on_cube.norm());
-  EXPECT_LT((plate_change - (Eigen::Vector3d(0.0, 0.0, -0.01) - impulse_on_cube)).norm(),
+  EXPECT_LT((plate_change - (plate_impulse - impulse_on_cube)).norm(),
             1e-9 * impulse_on_cube.norm())
       << "plate " << plate_change.transpose() << ", cube " << impulse_on_cube.transpose();
   EXPECT_LT(plate_end.z(), plate_velocity.z()) << "the cube slowed the plate";
