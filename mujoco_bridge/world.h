@@ -8,10 +8,12 @@
 //   3. collision: consistent (or closest-feature) penetration depth between
 //      deformables and proxies, analytic signed distance to primitive geoms;
 //   4. the deformables advance by dt (or substeps) in one coupled implicit
-//      solve, which yields the contact forces actually integrated;
+//      solve, with the MuJoCo trees in contact as unknowns of it too
+//      (RigidSystem), which yields the contact forces actually integrated;
 //   5. xfrc_applied = the user's own applied forces + the reactions of those
 //      contact forces and of attachments, each turned into force plus torque
-//      about the body's centre of mass xipos, world frame;
+//      about the body's centre of mass xipos, world frame, from the points
+//      where they acted at the step's start;
 //   6. mj_step2 with those forces.
 // The force on a deformable vertex is exactly opposite to what the rigid
 // body receives.
