@@ -1,5 +1,6 @@
 #include "deformable/coupled_step.h"
 
+#include <Eigen/Cholesky>
 #include <algorithm>
 #include <cmath>
 
@@ -79,6 +80,39 @@ int ConjugateGradients(const Multiply& multiply, const Precondition& preconditio
     ++iteration;
   }
   return iteration;
+}
+
+// work = C x on the vertices in `touched` (zero elsewhere there): the
+// vertex-rigid blocks of the rigid contacts' J^T G J times x's rigid part
+void MultiplyRigidToVertices(const std::vector<const Coupling*>& couplings,
+                             const Eigen::VectorXd& x, const std::vector<int>& touched,
+                             Eigen::VectorXd& work) {
+  for (int block : touched) work.segment<3>(3 * block).setZero();
+  for (const Coupling* coupling : couplings) {
+    const auto& J = *coupling->rigid_jacobian;
+    const Eigen::Vector3d g =
+        coupling->gain * (coupling->rigid_sign * J * x.segment(coupling->rigid_offset, J.cols()));
+    if (coupling->dof_a >= 0) work.segment<3>(coupling->dof_a) += g;
+    for (int i = 0; i < 4; ++i) {
+      if (coupling->dof_b[i] >= 0) work.segment<3>(coupling->dof_b[i]) -= coupling->w[i] * g;
+    }
+  }
+}
+
+// out = C^T y (the rigid degrees of freedom, from n_deformable on)
+void MultiplyVerticesToRigid(const std::vector<const Coupling*>& couplings,
+                             const Eigen::VectorXd& y, int n_deformable, Eigen::VectorXd& out) {
+  out.setZero();
+  for (const Coupling* coupling : couplings) {
+    Eigen::Vector3d u = Eigen::Vector3d::Zero();
+    if (coupling->dof_a >= 0) u += y.segment<3>(coupling->dof_a);
+    for (int i = 0; i < 4; ++i) {
+      if (coupling->dof_b[i] >= 0) u -= coupling->w[i] * y.segment<3>(coupling->dof_b[i]);
+    }
+    const auto& J = *coupling->rigid_jacobian;
+    out.segment(coupling->rigid_offset - n_deformable, J.cols()) +=
+        coupling->rigid_sign * J.transpose() * (coupling->gain * u);
+  }
 }
 
 }  // namespace
@@ -209,6 +243,14 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   for (size_t c = 0; c < contacts.size(); ++c) {
     couplings[c].active = integrated_force(c, v_new).dot(contacts[c].direction) >= 0.0;
   }
+  // the rigid trees eliminated in the preconditioner (kMaxEliminatedRigidDofs)
+  const int n_deformable = offset[num_bodies];
+  const int n_rigid = n - n_deformable;
+  const bool eliminate = n_rigid > 0 && n_rigid <= kMaxEliminatedRigidDofs;
+  std::vector<const Coupling*> rigid_couplings;
+  std::vector<int> touched;  // vertex blocks of the active rigid contacts
+  Eigen::VectorXd work = Eigen::VectorXd::Zero(n);
+  Eigen::LDLT<Eigen::MatrixXd> schur_factor;
   const Eigen::VectorXd body_rhs = b;
   const std::vector<Eigen::Matrix3d> body_blocks = blocks;
   CoupledStepReport report;
@@ -224,6 +266,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     b = body_rhs;
     blocks = body_blocks;
     std::vector<Eigen::MatrixXd> tree_inverses = tree_blocks;
+    rigid_couplings.clear();
     for (size_t c = 0; c < contacts.size(); ++c) {
       const Coupling& coupling = couplings[c];
       if (!coupling.active) continue;
@@ -233,28 +276,83 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
         tree_inverses[static_cast<size_t>(
             rigid->points[static_cast<size_t>(contacts[c].rigid_point)].tree)] +=
             J.transpose() * coupling.gain * J;
+        rigid_couplings.push_back(&coupling);
       }
       if (coupling.dof_a >= 0) blocks[static_cast<size_t>(coupling.dof_a / 3)] += coupling.gain;
       for (int i = 0; i < 4; ++i) {
         if (coupling.dof_b[i] >= 0) {
-          blocks[static_cast<size_t>(coupling.dof_b[i] / 3)] +=
-              coupling.w[i] * coupling.w[i] * coupling.gain;
+          // (eliminating a rigid side: w_i instead of w_i^2, see below)
+          const double weight =
+              eliminate && coupling.rigid_jacobian ? coupling.w[i] : coupling.w[i] * coupling.w[i];
+          blocks[static_cast<size_t>(coupling.dof_b[i] / 3)] += weight * coupling.gain;
         }
       }
     }
-    // block-Jacobi-preconditioned CG on A v+ = b, warm-started from v plus
-    // each body's last change, then from the last round's solution
+    // preconditioned CG on A v+ = b, warm-started from v plus each body's
+    // last change, then from the last round's solution
     for (Eigen::Matrix3d& block : blocks) {
       // symmetric positive definite (mass + PSD terms): invert directly
       block = block.inverse().eval();
     }
-    for (Eigen::MatrixXd& block : tree_inverses) {
-      block = block.ldlt().solve(Eigen::MatrixXd::Identity(block.rows(), block.cols())).eval();
+    if (eliminate) {
+      // The preconditioner is the exact inverse of P = [B C; C^T A_rr]: the
+      // vertices' 3 x 3 blocks B, the rigid trees' rows of A whole (A_rr and
+      // the vertex-rigid blocks C), so a rigid body's contacts act together
+      // in it. P is positive definite: each contact's share of it is, with
+      // a rigid side's barycentric weights w_i on B's diagonal instead of
+      // w_i^2 (then [diag(w) -w; -w^T 1] (x) G has Schur complement
+      // (1 - sum w_i) G = 0; with w_i^2, 1 - sum 1 < 0). Applied by block
+      // elimination through the Schur complement S = A_rr - C^T B^-1 C.
+      touched.clear();
+      for (const Coupling* coupling : rigid_couplings) {
+        if (coupling->dof_a >= 0) touched.push_back(coupling->dof_a / 3);
+        for (int i = 0; i < 4; ++i) {
+          if (coupling->dof_b[i] >= 0) touched.push_back(coupling->dof_b[i] / 3);
+        }
+      }
+      std::sort(touched.begin(), touched.end());
+      touched.erase(std::unique(touched.begin(), touched.end()), touched.end());
+      Eigen::MatrixXd schur = Eigen::MatrixXd::Zero(n_rigid, n_rigid);
+      for (int t = 0; t < num_trees; ++t) {
+        const Eigen::Index first = tree_offset[t] - n_deformable;
+        const Eigen::Index size = tree_offset[t + 1] - tree_offset[t];
+        schur.block(first, first, size, size) = tree_inverses[static_cast<size_t>(t)];
+      }
+      Eigen::VectorXd unit = Eigen::VectorXd::Zero(n), column(n_rigid);
+      for (int j = 0; j < n_rigid; ++j) {
+        unit[n_deformable + j] = 1.0;
+        MultiplyRigidToVertices(rigid_couplings, unit, touched, work);
+        for (int block : touched) {
+          work.segment<3>(3 * block) =
+              blocks[static_cast<size_t>(block)] * work.segment<3>(3 * block);
+        }
+        MultiplyVerticesToRigid(rigid_couplings, work, n_deformable, column);
+        schur.col(j) -= column;
+        unit[n_deformable + j] = 0.0;
+      }
+      schur_factor.compute(schur);
+    } else {
+      for (Eigen::MatrixXd& block : tree_inverses) {
+        block = block.ldlt().solve(Eigen::MatrixXd::Identity(block.rows(), block.cols())).eval();
+      }
     }
     auto precondition = [&](const Eigen::VectorXd& x, Eigen::VectorXd& y) {
       for (size_t i = 0; i < blocks.size(); ++i) {
         y.segment<3>(3 * static_cast<Eigen::Index>(i)) =
             blocks[i] * x.segment<3>(3 * static_cast<Eigen::Index>(i));
+      }
+      if (eliminate) {
+        // y_r = S^-1 (x_r - C^T B^-1 x_v), y_v = B^-1 (x_v - C y_r)
+        Eigen::VectorXd rigid_part(n_rigid);
+        MultiplyVerticesToRigid(rigid_couplings, y, n_deformable, rigid_part);
+        rigid_part = schur_factor.solve(x.tail(n_rigid) - rigid_part);
+        y.tail(n_rigid) = rigid_part;
+        MultiplyRigidToVertices(rigid_couplings, y, touched, work);
+        for (int block : touched) {
+          y.segment<3>(3 * block) -=
+              blocks[static_cast<size_t>(block)] * work.segment<3>(3 * block);
+        }
+        return;
       }
       for (int t = 0; t < num_trees; ++t) {
         const Eigen::MatrixXd& inverse = tree_inverses[static_cast<size_t>(t)];

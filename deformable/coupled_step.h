@@ -84,6 +84,10 @@ struct RigidSystem {
 inline constexpr int kMaxContactRounds = 8;
 // The relative residual of the solves that only settle which contacts push.
 inline constexpr double kSettlingTolerance = 1e-3;
+// Up to this many rigid degrees of freedom in a step, the preconditioner
+// eliminates them exactly (a dense Schur complement over the vertices'
+// blocks); beyond, each tree's block alone.
+inline constexpr int kMaxEliminatedRigidDofs = 120;
 
 // `rigid` (may be null) holds the trees and points of contacts with
 // rigid_point >= 0.
