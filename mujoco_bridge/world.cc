@@ -103,6 +103,27 @@ double MillisecondsSince(Clock::time_point start) {
   return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
 }
 
+// A MuJoCo body's motion, world frame: the velocity of its centre of mass
+// xipos, its angular velocity, and its spin (angular momentum about xipos,
+// with the principal inertia in the inertial frame ximat).
+struct BodyMotion {
+  Eigen::Vector3d velocity;
+  Eigen::Vector3d omega;
+  Eigen::Vector3d spin;
+};
+BodyMotion MotionOf(const mjModel* m, const mjData* d, int body) {
+  double velocity[6];  // angular, then linear at xipos (mjOBJ_BODY)
+  mj_objectVelocity(m, d, mjOBJ_BODY, body, velocity, 0);
+  BodyMotion motion;
+  motion.omega = Eigen::Vector3d(velocity[0], velocity[1], velocity[2]);
+  motion.velocity = Eigen::Vector3d(velocity[3], velocity[4], velocity[5]);
+  const Eigen::Matrix3d R_WI =
+      Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(d->ximat + 9 * body);
+  const Eigen::Vector3d inertia = Eigen::Map<const Eigen::Vector3d>(m->body_inertia + 3 * body);
+  motion.spin = R_WI * inertia.cwiseProduct(R_WI.transpose() * motion.omega);
+  return motion;
+}
+
 // X_WB of a MuJoCo body from xpos / xmat
 Eigen::Isometry3d BodyPose(const mjData* d, int body) {
   Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
@@ -1098,8 +1119,7 @@ Eigen::Vector3d World::LinearMomentum() const {
   Eigen::Vector3d p = Eigen::Vector3d::Zero();
   for (const auto& body : bodies_) p += body->LinearMomentum();
   for (int b = 1; b < model_->nbody; ++b) {
-    Eigen::Vector3d com = Eigen::Map<const Eigen::Vector3d>(data_->xipos + 3 * b);
-    p += model_->body_mass[b] * RigidBodyPointVelocity(b, com);
+    p += model_->body_mass[b] * MotionOf(model_, data_, b).velocity;
   }
   return p;
 }
@@ -1108,17 +1128,9 @@ Eigen::Vector3d World::AngularMomentum() const {
   Eigen::Vector3d L = Eigen::Vector3d::Zero();
   for (const auto& body : bodies_) L += body->AngularMomentum();
   for (int b = 1; b < model_->nbody; ++b) {
-    double velocity[6];  // angular, then linear at the centre of mass xipos, world frame
-    mj_objectVelocity(model_, data_, mjOBJ_BODY, b, velocity, 0);
-    const Eigen::Vector3d omega_W(velocity[0], velocity[1], velocity[2]);
-    const Eigen::Vector3d v_WBcm(velocity[3], velocity[4], velocity[5]);
+    const BodyMotion motion = MotionOf(model_, data_, b);
     const Eigen::Vector3d p_WBcm = Eigen::Map<const Eigen::Vector3d>(data_->xipos + 3 * b);
-    // spin with the principal inertia in the inertial frame I, then orbit
-    const Eigen::Matrix3d R_WI =
-        Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(data_->ximat + 9 * b);
-    const Eigen::Vector3d inertia = Eigen::Map<const Eigen::Vector3d>(model_->body_inertia + 3 * b);
-    L += R_WI * inertia.cwiseProduct(R_WI.transpose() * omega_W) +
-         model_->body_mass[b] * p_WBcm.cross(v_WBcm);
+    L += motion.spin + model_->body_mass[b] * p_WBcm.cross(motion.velocity);
   }
   return L;
 }
@@ -1132,17 +1144,9 @@ double World::DeformableKineticEnergy() const {
 double World::RigidKineticEnergy() const {
   double energy = 0.0;
   for (int b = 1; b < model_->nbody; ++b) {
-    double velocity[6];  // angular, then linear at the centre of mass xipos, world frame
-    mj_objectVelocity(model_, data_, mjOBJ_BODY, b, velocity, 0);
-    Eigen::Vector3d omega_W(velocity[0], velocity[1], velocity[2]);
-    Eigen::Vector3d v_WBcm(velocity[3], velocity[4], velocity[5]);
-    // rotational energy with the principal inertia in the inertial frame I
-    Eigen::Matrix3d R_WI =
-        Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(data_->ximat + 9 * b);
-    Eigen::Vector3d omega_I = R_WI.transpose() * omega_W;
-    Eigen::Vector3d inertia = Eigen::Map<const Eigen::Vector3d>(model_->body_inertia + 3 * b);
-    energy += 0.5 * model_->body_mass[b] * v_WBcm.squaredNorm() +
-              0.5 * omega_I.dot(inertia.cwiseProduct(omega_I));
+    const BodyMotion motion = MotionOf(model_, data_, b);
+    energy += 0.5 * model_->body_mass[b] * motion.velocity.squaredNorm() +
+              0.5 * motion.omega.dot(motion.spin);
   }
   return energy;
 }
