@@ -140,15 +140,12 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   std::vector<Eigen::Matrix3d> blocks(static_cast<size_t>(offset[num_bodies] / 3));
   std::vector<char> pinned(n, 0);
   Eigen::VectorXd delta = Eigen::VectorXd::Zero(n);
-  // a rigid tree: M q+ = M q + impulse + its contacts' share; its
-  // preconditioner block, the whole tree's
-  std::vector<Eigen::MatrixXd> tree_blocks(num_trees);
+  // a rigid tree: M q+ = M q + impulse + its contacts' share
   for (int t = 0; t < num_trees; ++t) {
     const RigidTree& tree = rigid->trees[t];
     const Eigen::Index size = tree.velocity.size();
     v.segment(tree_offset[t], size) = tree.velocity;
     b.segment(tree_offset[t], size) = tree.mass * tree.velocity + tree.impulse;
-    tree_blocks[t] = tree.mass;
   }
   for (int k = 0; k < num_bodies; ++k) {
     DeformableBody& body = *bodies[k];
@@ -265,7 +262,10 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     // the active contacts' forces into b, gains into the diagonal
     b = body_rhs;
     blocks = body_blocks;
-    std::vector<Eigen::MatrixXd> tree_inverses = tree_blocks;
+    // each tree's diagonal block of A, M + its active contacts' J^T G J
+    // (inverted in place below unless the trees are eliminated)
+    std::vector<Eigen::MatrixXd> tree_diagonal(num_trees);
+    for (int t = 0; t < num_trees; ++t) tree_diagonal[t] = rigid->trees[t].mass;
     rigid_couplings.clear();
     for (size_t c = 0; c < contacts.size(); ++c) {
       const Coupling& coupling = couplings[c];
@@ -273,7 +273,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
       coupling.AddJt(contact_rhs[c], b);
       if (coupling.rigid_jacobian) {
         const auto& J = *coupling.rigid_jacobian;
-        tree_inverses[static_cast<size_t>(
+        tree_diagonal[static_cast<size_t>(
             rigid->points[static_cast<size_t>(contacts[c].rigid_point)].tree)] +=
             J.transpose() * coupling.gain * J;
         rigid_couplings.push_back(&coupling);
@@ -316,7 +316,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
       for (int t = 0; t < num_trees; ++t) {
         const Eigen::Index first = tree_offset[t] - n_deformable;
         const Eigen::Index size = tree_offset[t + 1] - tree_offset[t];
-        schur.block(first, first, size, size) = tree_inverses[static_cast<size_t>(t)];
+        schur.block(first, first, size, size) = tree_diagonal[static_cast<size_t>(t)];
       }
       Eigen::VectorXd unit = Eigen::VectorXd::Zero(n), column(n_rigid);
       for (int j = 0; j < n_rigid; ++j) {
@@ -332,7 +332,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
       }
       schur_factor.compute(schur);
     } else {
-      for (Eigen::MatrixXd& block : tree_inverses) {
+      for (Eigen::MatrixXd& block : tree_diagonal) {
         block = block.ldlt().solve(Eigen::MatrixXd::Identity(block.rows(), block.cols())).eval();
       }
     }
@@ -355,7 +355,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
         return;
       }
       for (int t = 0; t < num_trees; ++t) {
-        const Eigen::MatrixXd& inverse = tree_inverses[static_cast<size_t>(t)];
+        const Eigen::MatrixXd& inverse = tree_diagonal[static_cast<size_t>(t)];
         y.segment(tree_offset[t], inverse.rows()).noalias() =
             inverse * x.segment(tree_offset[t], inverse.rows());
       }
