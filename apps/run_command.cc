@@ -95,7 +95,7 @@ void RunRollout(const RunOptions& options) {
   if (!steps_csv || !bodies_csv) throw Error(options.out + ": cannot write the output files");
   steps_csv << "step,time,colliding_points,max_depth,mean_depth,kinetic_deformable,kinetic_rigid,"
                "px,py,pz,direction_change_max_deg,neighbour_angle_mean_deg,fallback_points,"
-               "unresolved_points,wall_ms\n";
+               "unresolved_points,solver_iterations,contact_rounds,released_contacts,wall_ms\n";
   bodies_csv << "frame,time,body,x,y,z,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz\n";
   // (a rate so low that not even one frame falls in the run: one frame, the
   // first; the count of steps between frames would not fit in a long)
@@ -114,6 +114,7 @@ void RunRollout(const RunOptions& options) {
   double penetration_ms = 0.0;  // the penetration solver's part of sum_ms[0]
   long penetration_points = 0;
   long sum_iterations = 0;
+  long sum_rounds = 0;
   int max_points = 0;
   double max_depth = 0.0;
   long done = 0;
@@ -141,16 +142,19 @@ void RunRollout(const RunOptions& options) {
     penetration_ms += metrics.penetration_ms;
     penetration_points += metrics.penetration_points;
     sum_iterations += metrics.solver_iterations;
+    sum_rounds += metrics.contact_rounds;
     max_points = std::max(max_points, metrics.colliding_points);
     max_depth = std::max(max_depth, metrics.max_depth);
     Eigen::Vector3d p = world->LinearMomentum();
     char line[512];
-    std::snprintf(
-        line, sizeof(line), "%ld,%.9g,%d,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.6g,%.6g,%d,%d,%.6g\n",
-        step + 1, world->time(), metrics.colliding_points, metrics.max_depth, metrics.mean_depth,
-        world->DeformableKineticEnergy(), world->RigidKineticEnergy(), p.x(), p.y(), p.z(),
-        rollout_metrics.step_max_direction_change(), rollout_metrics.step_mean_neighbour_angle(),
-        metrics.fallback_points, metrics.unresolved_points, metrics.total_ms);
+    std::snprintf(line, sizeof(line),
+                  "%ld,%.9g,%d,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.6g,%.6g,%d,%d,%d,%d,%d,%.6g\n",
+                  step + 1, world->time(), metrics.colliding_points, metrics.max_depth,
+                  metrics.mean_depth, world->DeformableKineticEnergy(), world->RigidKineticEnergy(),
+                  p.x(), p.y(), p.z(), rollout_metrics.step_max_direction_change(),
+                  rollout_metrics.step_mean_neighbour_angle(), metrics.fallback_points,
+                  metrics.unresolved_points, metrics.solver_iterations, metrics.contact_rounds,
+                  metrics.released_contacts, metrics.total_ms);
     steps_csv << line;
     if (step % frame_every == 0) {
       for (int b = 1; b < world->num_rigid_bodies(); ++b) {
@@ -212,6 +216,7 @@ void RunRollout(const RunOptions& options) {
                             {"mujoco", sum_ms[2] / n},
                             {"total", sum_ms[3] / n}};
   summary["mean_solver_iterations"] = static_cast<double>(sum_iterations) / n;
+  summary["mean_contact_rounds"] = static_cast<double>(sum_rounds) / n;
   summary["contacts"] = {
       {"max_colliding_points", max_points},
       {"mean_colliding_points", static_cast<double>(sum_points) / n},

@@ -44,10 +44,10 @@ struct CoupledStepReport {
   StepStatus status = StepStatus::kOk;
   int bad_body = -1;  // with kDiverged: the body and vertex
   int bad_vertex = -1;
-  int iterations = 0;     // CG iterations, over all rounds
-  double residual = 0.0;  // relative, of the last round
-  int rounds = 1;         // solves
-  int released_contacts = 0;
+  int iterations = 0;         // CG iterations, over all rounds
+  double residual = 0.0;      // relative, of the last round
+  int rounds = 1;             // solves
+  int released_contacts = 0;  // left without force after the last round
 };
 
 // Rigid bodies solved with the step. A rigid side that keeps its velocity

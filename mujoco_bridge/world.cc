@@ -132,6 +132,17 @@ Eigen::Isometry3d BodyPose(const mjData* d, int body) {
   return X;
 }
 
+// X moved for t seconds at angular velocity omega and origin velocity v
+// (world frame): turned about its origin, shifted
+Eigen::Isometry3d Advance(Eigen::Isometry3d X, const Eigen::Vector3d& omega,
+                          const Eigen::Vector3d& v, double t) {
+  if (omega.norm() > 0.0) {
+    X.linear() = Eigen::AngleAxisd(omega.norm() * t, omega.normalized()) * X.linear();
+  }
+  X.translation() += t * v;
+  return X;
+}
+
 // signed distance of p (geom frame) to a primitive geom, and the unit
 // outward direction there; false for geom types without one
 bool GeomDistance(int type, const double* size, const Eigen::Vector3d& p, double& distance,
@@ -693,11 +704,15 @@ Eigen::Vector3d World::RigidBodyPointVelocity(int body, const Eigen::Vector3d& p
 // leaves the total angular momentum exactly unchanged.
 void World::KeepReactionPoints() {
   reaction_points_.clear();
+  // (on the rigid body: where the point is in the pose at the step's start,
+  // at which MuJoCo applies the reactions)
   for (size_t c = 0; c < contacts_.size(); ++c) {
     if (contact_rigid_body_[c] < 0) continue;
     const ContactPoint& contact = contacts_[c];
+    const int rigid = contact_rigid_body_[c];
     if (contact.body_a >= 0) {
-      reaction_points_.push_back(bodies_[contact.body_a]->positions().row(contact.vertex_a));
+      reaction_points_.push_back(AtStepStart(
+          rigid, bodies_[contact.body_a]->positions().row(contact.vertex_a).transpose()));
       continue;
     }
     // a proxy vertex inside a deformable: its place in the containing tetrahedron
@@ -707,12 +722,13 @@ void World::KeepReactionPoints() {
     for (int k = 0; k < 4; ++k) {
       point += contact.barycentric_b[k] * body.positions().row(tet[k]).transpose();
     }
-    reaction_points_.push_back(point);
+    reaction_points_.push_back(AtStepStart(rigid, point));
   }
   for (size_t i = 0; i < bodies_.size(); ++i) {
     if (attach_body_[i] < 0) continue;
     for (int v : bodies_[i]->pinned_vertices()) {
-      reaction_points_.push_back(bodies_[i]->positions().row(v));
+      reaction_points_.push_back(
+          AtStepStart(attach_body_[i], bodies_[i]->positions().row(v).transpose()));
     }
   }
 }
@@ -725,7 +741,52 @@ void World::KeepReactionPoints() {
 // user's applied forces, and MuJoCo's constraint forces of the last step
 // (mj_step2 finds this step's after; the last step's keep a box that a
 // floor holds up, under a body resting on it, at rest in the prediction).
-void World::BuildRigidSystem(double dt) {
+// The generalized forces besides ours: MuJoCo's actuators now (mj_step2
+// computes them again from the same state), the user's body forces, the
+// rest as MuJoCo holds them (once a step: the same in every substep).
+void World::FindOtherForces() {
+  if (other_forces_ready_) return;
+  const mjModel* m = model_;
+  mjData* d = data_;
+  mj_fwdActuation(m, d);
+  other_forces_.assign(m->nv, 0.0);
+  for (int b = 1; b < m->nbody; ++b) {
+    const double* user = user_.data() + 6 * b;
+    if (std::all_of(user, user + 6, [](double x) { return x == 0.0; })) continue;
+    mj_applyFT(m, d, user, user + 3, d->xipos + 3 * b, b, other_forces_.data());
+  }
+  for (int i = 0; i < m->nv; ++i) {
+    other_forces_[i] += d->qfrc_passive[i] - d->qfrc_bias[i] + d->qfrc_actuator[i] +
+                        d->qfrc_applied[i] + d->qfrc_constraint[i];
+  }
+  other_forces_ready_ = true;
+}
+
+// Between substeps, the trees this substep did not solve move on under the
+// forces besides ours, M^-1 (once a step: MuJoCo's factorization of M is
+// that of the step's start, as is its own step's), so that a tree solved
+// in a later substep starts where MuJoCo, stepped once with the substeps'
+// mean force, will have it.
+void World::AdvanceUnsolvedTrees(double dt) {
+  const mjModel* m = model_;
+  FindOtherForces();
+  if (!free_acceleration_ready_) {
+    free_acceleration_.resize(m->nv);
+    mj_solveM(m, data_, free_acceleration_.data(), other_forces_.data(), 1);
+    free_acceleration_ready_ = true;
+  }
+  for (int root = 1; root < m->nbody; ++root) {
+    if (m->body_rootid[root] != root || tree_num_dofs_[root] == 0 || tree_slot_[root] >= 0) {
+      continue;
+    }
+    for (int i = tree_first_dof_[root]; i < tree_first_dof_[root] + tree_num_dofs_[root]; ++i) {
+      substep_velocity_[i] += dt * free_acceleration_[i];
+    }
+    tree_carried_[root] = 1;
+  }
+}
+
+void World::BuildRigidSystem(double dt, bool carried) {
   const mjModel* m = model_;
   mjData* d = data_;
   for (size_t t = 0; t < rigid_.trees.size(); ++t) tree_slot_[rigid_roots_[t]] = -1;
@@ -733,7 +794,6 @@ void World::BuildRigidSystem(double dt) {
   rigid_.trees.clear();
   rigid_.points.clear();
   if (!scene_.solver.implicit_rigid) return;
-  bool forces_ready = false;
   size_t point = 0;
   for (size_t c = 0; c < contacts_.size(); ++c) {
     const int body = contact_rigid_body_[c];
@@ -743,23 +803,7 @@ void World::BuildRigidSystem(double dt) {
     const int first = tree_first_dof_[root];
     const int size = tree_num_dofs_[root];
     if (size == 0) continue;  // welded to the world, or moved by mocap: its velocity is known
-    if (!forces_ready) {
-      // the generalized forces besides ours: MuJoCo's actuators now (mj_step2
-      // computes them again from the same state), the user's body forces,
-      // the rest as MuJoCo holds them
-      mj_fwdActuation(m, d);
-      other_forces_.assign(m->nv, 0.0);
-      for (int b = 1; b < m->nbody; ++b) {
-        const double* user = user_.data() + 6 * b;
-        if (std::all_of(user, user + 6, [](double x) { return x == 0.0; })) continue;
-        mj_applyFT(m, d, user, user + 3, d->xipos + 3 * b, b, other_forces_.data());
-      }
-      for (int i = 0; i < m->nv; ++i) {
-        other_forces_[i] += d->qfrc_passive[i] - d->qfrc_bias[i] + d->qfrc_actuator[i] +
-                            d->qfrc_applied[i] + d->qfrc_constraint[i];
-      }
-      forces_ready = true;
-    }
+    FindOtherForces();
     if (tree_slot_[root] < 0) {
       tree_slot_[root] = static_cast<int>(rigid_.trees.size());
       rigid_roots_.push_back(root);
@@ -773,7 +817,7 @@ void World::BuildRigidSystem(double dt) {
           tree.mass(i - first, j - first) = tree.mass(j - first, i - first) = d->qM[address++];
         }
       }
-      tree.velocity = Eigen::Map<const Eigen::VectorXd>(d->qvel + first, size);
+      tree.velocity = Eigen::Map<const Eigen::VectorXd>(substep_velocity_.data() + first, size);
       tree.impulse = dt * Eigen::Map<const Eigen::VectorXd>(other_forces_.data() + first, size);
     }
     jacobian_.resize(3 * static_cast<size_t>(m->nv));
@@ -785,6 +829,51 @@ void World::BuildRigidSystem(double dt) {
             jacobian_.data(), 3, m->nv)
             .middleCols(first, size);
     contacts_[c].rigid_point = static_cast<int>(rigid_.points.size()) - 1;
+    if (carried) {  // the point's velocity from the tree's carried one
+      const Eigen::Vector3d v =
+          rigid_point.jacobian * rigid_.trees[static_cast<size_t>(rigid_point.tree)].velocity;
+      (contacts_[c].body_a < 0 ? contacts_[c].velocity_a : contacts_[c].velocity_b) = v;
+    }
+  }
+}
+
+Eigen::Isometry3d World::SubstepPose(int body) const {
+  return !substep_moved_.empty() && substep_moved_[body] ? substep_pose_[body]
+                                                         : BodyPose(data_, body);
+}
+
+Eigen::Vector3d World::AtStepStart(int body, const Eigen::Vector3d& p) const {
+  if (body <= 0 || substep_moved_.empty() || !substep_moved_[body]) return p;
+  return BodyPose(data_, body) * (substep_pose_[body].inverse() * p);
+}
+
+void World::SubstepTwist(int body, Eigen::Vector3d& omega, Eigen::Vector3d& v) {
+  const mjModel* m = model_;
+  if (tree_carried_.empty() || !tree_carried_[m->body_rootid[body]]) {  // MuJoCo's velocity
+    double velocity[6];  // angular, then linear at the body origin xpos
+    mj_objectVelocity(m, data_, mjOBJ_XBODY, body, velocity, 0);
+    omega = Eigen::Vector3d(velocity[0], velocity[1], velocity[2]);
+    v = Eigen::Vector3d(velocity[3], velocity[4], velocity[5]);
+    return;
+  }
+  // the tree's velocities as the substeps predicted them, through the
+  // Jacobians of the body's origin
+  jacobian_.resize(3 * static_cast<size_t>(m->nv));
+  rotation_jacobian_.resize(3 * static_cast<size_t>(m->nv));
+  mj_jacBody(m, data_, jacobian_.data(), rotation_jacobian_.data(), body);
+  using Jacobian = Eigen::Matrix<double, 3, Eigen::Dynamic, Eigen::RowMajor>;
+  const Eigen::Map<const Eigen::VectorXd> qvel(substep_velocity_.data(), m->nv);
+  v = Eigen::Map<const Jacobian>(jacobian_.data(), 3, m->nv) * qvel;
+  omega = Eigen::Map<const Jacobian>(rotation_jacobian_.data(), 3, m->nv) * qvel;
+}
+
+void World::AdvanceSubstepPoses(double dt) {
+  for (int b = 1; b < model_->nbody; ++b) {
+    if (RigidBodyIsStatic(b)) continue;
+    Eigen::Vector3d omega, v;
+    SubstepTwist(b, omega, v);
+    substep_pose_[b] = Advance(SubstepPose(b), omega, v, dt);
+    substep_moved_[b] = 1;
   }
 }
 
@@ -798,7 +887,7 @@ void World::AddRigidForce(int body, const Eigen::Vector3d& point, const Eigen::V
 
 void World::UpdateProxies() {
   for (auto& proxy : proxies_) {
-    const Eigen::Isometry3d X_WB = BodyPose(data_, proxy->body);
+    const Eigen::Isometry3d X_WB = SubstepPose(proxy->body);
     const Eigen::Matrix3d R_WB = X_WB.linear();
     const Eigen::Vector3d p_WB = X_WB.translation();
     // (a body that has not moved, bit for bit, such as a static one: its
@@ -841,6 +930,12 @@ void World::ForEachGeomPenetration(
     Eigen::Vector3d x_g = Eigen::Map<const Eigen::Vector3d>(data_->geom_xpos + 3 * g);
     Eigen::Matrix3d R_g =
         Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(data_->geom_xmat + 9 * g);
+    const int body = m->geom_bodyid[g];
+    if (!substep_moved_.empty() && substep_moved_[body]) {  // (where a substep put its body)
+      const Eigen::Isometry3d moved = substep_pose_[body] * BodyPose(data_, body).inverse();
+      x_g = moved * x_g;
+      R_g = moved.linear() * R_g;
+    }
     for (size_t i = 0; i < bodies_.size(); ++i) {
       const DeformableBody& deformable = *bodies_[i];
       for (int v = 0; v < deformable.num_vertices(); ++v) {
@@ -865,7 +960,7 @@ void World::AddGeomContacts() {
     ContactPoint contact;
     contact.body_a = i;
     contact.vertex_a = v;
-    contact.velocity_b = RigidBodyPointVelocity(body, p);
+    contact.velocity_b = RigidBodyPointVelocity(body, AtStepStart(body, p));
     contact.mass_b = body > 0 ? m->body_mass[body] : 0.0;
     contact.depth = depth;
     contact.direction = direction;
@@ -961,7 +1056,7 @@ void World::CollectContacts() {
       const Proxy& proxy = *proxies_[r.object - num_deformables];
       rigid = proxy.body;
       Eigen::Vector3d p = proxy.positions.row(r.vertex).transpose();
-      contact.velocity_a = RigidBodyPointVelocity(proxy.body, p);
+      contact.velocity_a = RigidBodyPointVelocity(proxy.body, AtStepStart(proxy.body, p));
       contact.mass_a = model_->body_mass[proxy.body];
       area = proxy.areas[r.vertex];
       kappa = kappa_[r.penetrated];
@@ -977,7 +1072,7 @@ void World::CollectContacts() {
       const Proxy& proxy = *proxies_[r.penetrated - num_deformables];
       rigid = proxy.body;
       Eigen::Vector3d p = bodies_[r.object]->positions().row(r.vertex).transpose();
-      contact.velocity_b = RigidBodyPointVelocity(proxy.body, p);
+      contact.velocity_b = RigidBodyPointVelocity(proxy.body, AtStepStart(proxy.body, p));
       contact.mass_b = model_->body_mass[proxy.body];
       contact.friction = std::max(contact.friction, proxy.friction);
     }
@@ -1020,6 +1115,12 @@ void World::Step() {
   StepSettings settings = step_settings_;
   settings.dt = m->opt.timestep / substeps;
   std::fill(accumulated_.begin(), accumulated_.end(), 0.0);
+  other_forces_ready_ = false;
+  free_acceleration_ready_ = false;
+  substep_velocity_.assign(d->qvel, d->qvel + m->nv);
+  tree_carried_.assign(m->nbody, 0);
+  substep_moved_.assign(m->nbody, 0);
+  substep_pose_.resize(m->nbody);
   std::vector<DeformableBody*> bodies;
   for (auto& body : bodies_) bodies.push_back(body.get());
   for (int substep = 0; substep < substeps; ++substep) {
@@ -1029,26 +1130,21 @@ void World::Step() {
     for (size_t i = 0; i < bodies_.size(); ++i) {
       if (attach_body_[i] >= 0) {
         // pins follow the body over this substep (predicted from its velocity)
-        int body = attach_body_[i];
-        double velocity[6];  // angular, then linear at the body origin xpos
-        mj_objectVelocity(m, d, mjOBJ_XBODY, body, velocity, 0);
-        Eigen::Isometry3d X = BodyPose(d, body);
-        Eigen::Vector3d omega(velocity[0], velocity[1], velocity[2]);
-        double t = settings.dt * (substep + 1);
-        if (omega.norm() > 0.0) {
-          X.linear() = Eigen::AngleAxisd(omega.norm() * t, omega.normalized()) * X.linear();
-        }
-        X.translation() += t * Eigen::Vector3d(velocity[3], velocity[4], velocity[5]);
-        bodies_[i]->SetPinFrame(X);
+        const int body = attach_body_[i];
+        Eigen::Vector3d omega, v;
+        SubstepTwist(body, omega, v);
+        bodies_[i]->SetPinFrame(Advance(SubstepPose(body), omega, v, settings.dt));
       }
     }
     metrics_.collision_ms += MillisecondsSince(phase);
     KeepReactionPoints();
-    BuildRigidSystem(settings.dt);
+    BuildRigidSystem(settings.dt, /*carried=*/substep > 0);
     phase = Clock::now();
     ContactSettings contact_settings = contact_settings_;
     CoupledStepReport report = StepCoupled(bodies, contacts_, contact_settings, settings, &rigid_);
     metrics_.solver_iterations += report.iterations;
+    metrics_.contact_rounds += report.rounds;
+    metrics_.released_contacts += report.released_contacts;
     metrics_.deformable_ms += MillisecondsSince(phase);
     if (report.status != StepStatus::kOk) {
       metrics_.status = report.status;
@@ -1058,6 +1154,19 @@ void World::Step() {
               << " s); try a smaller timestep, more substeps or a softer contact stiffness";
       metrics_.message = message.str();
       return;
+    }
+    // the next substep's trees start where this one's ended (MuJoCo, stepped
+    // with the substeps' mean force, then ends there too), and the bodies
+    // where their velocities take them
+    for (size_t t = 0; t < rigid_.trees.size(); ++t) {
+      const RigidTree& tree = rigid_.trees[t];
+      Eigen::Map<Eigen::VectorXd>(substep_velocity_.data() + tree_first_dof_[rigid_roots_[t]],
+                                  tree.velocity_end.size()) = tree.velocity_end;
+      tree_carried_[rigid_roots_[t]] = 1;
+    }
+    if (substep + 1 < substeps) {
+      if (scene_.solver.implicit_rigid) AdvanceUnsolvedTrees(settings.dt);
+      AdvanceSubstepPoses(settings.dt);
     }
     // reactions on the rigid bodies, averaged over substeps, at the points
     // kept before the step
@@ -1083,6 +1192,7 @@ void World::Step() {
         std::max(metrics_.colliding_points, static_cast<int>(contacts_.size()));
     if (!contacts_.empty()) metrics_.mean_depth /= static_cast<double>(contacts_.size());
   }
+  std::fill(substep_moved_.begin(), substep_moved_.end(), 0);  // (MuJoCo's poses again)
   // xfrc_applied: the user's forces + ours (MuJoCo order: force, then torque)
   for (int b = 0; b < m->nbody; ++b) {
     for (int k = 0; k < 6; ++k) {

@@ -19,6 +19,7 @@
 // body receives.
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>
 #include <functional>
 #include <memory>
 #include <optional>
@@ -74,7 +75,12 @@ struct StepMetrics {
   double deformable_ms = 0.0;
   double mujoco_ms = 0.0;
   double total_ms = 0.0;
-  int solver_iterations = 0;
+  int solver_iterations = 0;  // conjugate-gradient iterations, over substeps and rounds
+  // the coupled step's solves (one without contacts, at least two with
+  // them, more when contacts that would pull are released: coupled_step.h)
+  // and the contacts released, over substeps
+  int contact_rounds = 0;
+  int released_contacts = 0;
   StepStatus status = StepStatus::kOk;
   std::string message;  // with kDiverged: body, vertex, step
 };
@@ -203,8 +209,22 @@ class World {
   // Before a step: where the reactions of the contacts with MuJoCo bodies,
   // then of the pins, will act (reaction_points_).
   void KeepReactionPoints();
-  void BuildRigidSystem(double dt);
+  // The rigid system of this substep (dt); `carried`: a later substep,
+  // whose trees start at the velocities the substeps before predicted.
+  void BuildRigidSystem(double dt, bool carried);
+  void FindOtherForces();                // other_forces_, once a step
+  void AdvanceUnsolvedTrees(double dt);  // (substeps)
   void AddRigidForce(int body, const Eigen::Vector3d& point, const Eigen::Vector3d& force);
+  // Substeps (MuJoCo steps once, after them): a body's pose in this substep
+  // (MuJoCo's in the first, then moved by the velocities the substeps
+  // predicted); where a point of it there was at the step's start; its
+  // angular velocity and its origin's velocity in this substep (MuJoCo's,
+  // or its tree's as a substep predicted it); every moving body's pose
+  // advanced by a substep of dt.
+  Eigen::Isometry3d SubstepPose(int body) const;
+  Eigen::Vector3d AtStepStart(int body, const Eigen::Vector3d& p) const;
+  void SubstepTwist(int body, Eigen::Vector3d& omega, Eigen::Vector3d& v);
+  void AdvanceSubstepPoses(double dt);
 
   SceneSpec scene_;
   WorldOptions options_;
@@ -234,10 +254,24 @@ class World {
   RigidSystem rigid_;
   std::vector<double> jacobian_;      // 3 x nv, row-major
   std::vector<double> other_forces_;  // nv
-  std::vector<double> ours_;          // nbody x 6, written last step
-  std::vector<double> user_;          // nbody x 6, the user's part of xfrc_applied
-  std::vector<double> written_;       // nbody x 6, xfrc_applied as written last step
-  std::vector<double> accumulated_;   // nbody x 6, this step
+  // nv: the generalized velocities a substep's trees start at: MuJoCo's at
+  // the step's start, each tree's as the last substep that solved it
+  // predicted (MuJoCo steps once, after the substeps: its velocities stay
+  // those of the step's start)
+  std::vector<double> substep_velocity_;
+  std::vector<double> free_acceleration_;  // nv: M^-1 other_forces_ (substeps)
+  bool free_acceleration_ready_ = false;
+  std::vector<char> tree_carried_;               // per root body: substep_velocity_ is a substep's
+  std::vector<Eigen::Isometry3d> substep_pose_;  // per body: see SubstepPose
+  std::vector<char> substep_moved_;              // per body: substep_pose_ holds its pose
+  std::vector<double> rotation_jacobian_;        // 3 x nv, row-major
+  std::vector<double> ours_;                     // nbody x 6, written last step
+  std::vector<double> user_;                     // nbody x 6, the user's part of xfrc_applied
+  std::vector<double> written_;                  // nbody x 6, xfrc_applied as written last step
+  std::vector<double> accumulated_;              // nbody x 6, this step
+  // whether other_forces_ holds this step's (MuJoCo's state does not change
+  // between substeps: found once a step)
+  bool other_forces_ready_ = false;
   std::function<void(World&)> controller_;
   StepSettings step_settings_;
   ContactSettings contact_settings_;

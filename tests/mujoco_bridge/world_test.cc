@@ -10,8 +10,10 @@
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <set>
+#include <sstream>
 #include <string>
 #include <utility>
+#include <vector>
 
 #include "mesh/error.h"
 #include "mesh/text_reader.h"
@@ -469,29 +471,37 @@ std::string OnAStiffSlab(const std::string& bodies, const std::string& deformabl
 // (E = 1e7 Pa, pinned): each proxy vertex's contact is far stiffer than the
 // box's mass allows an explicit step (dt sqrt(k / m) > 2; moved at its start
 // velocity and pushed after the step, the box was thrown a metre up). Solved
-// with the step (RigidSystem), it rests: the contacts carry its weight.
+// with the step (RigidSystem), it rests: the contacts carry its weight. So
+// it does with substeps, each starting from the box's velocity and pose as
+// the substeps before left them (started from the step's, the box was
+// thrown 2 cm up with two substeps: the second stopped it again).
 TEST(Coupling, LightRigidBodyRestsOnAStiffDeformable) {
-  TempDir dir;
-  const std::string path = dir.Write("light.xml", OnAStiffSlab(R"(
+  for (const int substeps : {1, 2, 4}) {
+    SCOPED_TRACE(::testing::Message() << substeps << " substeps");
+    TempDir dir;
+    const std::string path = dir.Write("light.xml", OnAStiffSlab(R"(
     <body name="box" pos="0 0 0.0205"><freejoint/>
       <geom name="box" type="box" size="0.02 0.02 0.02" mass="0.05" contype="0" conaffinity="0"/>
     </body>)",
-                                                               R"(
+                                                                 R"(
+    <solver substeps=")" + std::to_string(substeps) +
+                                                                     R"("/>
     <rigidtet body="box" geom="box" resolution="3"/>)",
-                                                               "0.1 0.1", "10 10"));
-  std::unique_ptr<World> world = World::Load(path);
-  const int box = world->BodyId("box");
-  double highest = 0.0;
-  for (int s = 0; s < 1000; ++s) {
-    world->Step();
-    ASSERT_EQ(world->metrics().status, StepStatus::kOk) << world->metrics().message;
-    highest = std::max(highest, world->RigidBodyPosition(box).z());
+                                                                 "0.1 0.1", "10 10"));
+    std::unique_ptr<World> world = World::Load(path);
+    const int box = world->BodyId("box");
+    double highest = 0.0;
+    for (int s = 0; s < 1000; ++s) {
+      world->Step();
+      ASSERT_EQ(world->metrics().status, StepStatus::kOk) << world->metrics().message;
+      highest = std::max(highest, world->RigidBodyPosition(box).z());
+    }
+    EXPECT_LT(highest, 0.0206) << "m: never thrown up";
+    EXPECT_NEAR(world->RigidBodyPosition(box).z(), 0.02, 1e-4) << "resting on the slab";
+    EXPECT_LT(world->RigidKineticEnergy(), 1e-10);
+    EXPECT_NEAR(world->coupling_forces()[6 * box + 2], 0.05 * 9.81, 1e-4 * 0.05 * 9.81)
+        << "N: the contacts carry the box's weight";
   }
-  EXPECT_LT(highest, 0.0206) << "m: never thrown up";
-  EXPECT_NEAR(world->RigidBodyPosition(box).z(), 0.02, 1e-4) << "resting on the slab";
-  EXPECT_LT(world->RigidKineticEnergy(), 1e-10);
-  EXPECT_NEAR(world->coupling_forces()[6 * box + 2], 0.05 * 9.81, 1e-4 * 0.05 * 9.81)
-      << "N: the contacts carry the box's weight";
 }
 
 // The same for a mechanism: a light two-link arm on hinges (80 g) lays its
@@ -799,7 +809,7 @@ TEST(RunCommand, OutputsParse) {
   EXPECT_EQ(header,
             "step,time,colliding_points,max_depth,mean_depth,kinetic_deformable,kinetic_rigid,px,"
             "py,pz,direction_change_max_deg,neighbour_angle_mean_deg,fallback_points,"
-            "unresolved_points,wall_ms");
+            "unresolved_points,solver_iterations,contact_rounds,released_contacts,wall_ms");
   // the cube lands on the box: contacts, none of them an artifact
   const nlohmann::json& metrics = summary["metrics"];
   EXPECT_GT(metrics["colliding_points"].get<long>(), 0);
@@ -813,9 +823,30 @@ TEST(RunCommand, OutputsParse) {
   EXPECT_LE(contacts["penetration_ms_per_step"].get<double>(),
             summary["ms_per_step"]["collision"].get<double>());
   EXPECT_GT(contacts["penetration_us_per_point"].get<double>(), 0.0);
+  // the solver's columns add up to the summary's means; every step solves
+  // at least once, twice with contacts (settling, then precise), and
+  // releases no more contacts than it has
   int rows = 0;
-  while (std::getline(steps, line)) ++rows;
+  long iterations = 0, rounds = 0, released = 0;
+  while (std::getline(steps, line)) {
+    std::vector<std::string> fields;
+    std::stringstream row(line);
+    for (std::string field; std::getline(row, field, ',');) fields.push_back(field);
+    ASSERT_EQ(fields.size(), 18u) << line;
+    const int colliding = std::stoi(fields[2]);
+    const int step_rounds = std::stoi(fields[15]), step_released = std::stoi(fields[16]);
+    EXPECT_GE(step_rounds, colliding > 0 ? 2 : 1) << line;
+    EXPECT_LE(step_released, colliding) << line;
+    iterations += std::stol(fields[14]);
+    rounds += step_rounds;
+    released += step_released;
+    ++rows;
+  }
   EXPECT_EQ(rows, 100);
+  EXPECT_DOUBLE_EQ(summary["mean_solver_iterations"].get<double>(), iterations / 100.0);
+  EXPECT_DOUBLE_EQ(summary["mean_contact_rounds"].get<double>(), rounds / 100.0);
+  // (the cube lands and bounces: some contacts leave the box)
+  EXPECT_GT(released, 0);
   EXPECT_TRUE(std::filesystem::exists(dir.path() / "out" / "vtk" / "series.pvd"));
   EXPECT_TRUE(std::filesystem::exists(dir.path() / "out" / "vtk" / "cube_0.vtu"));
   if (std::system("/usr/bin/python3 -c 'import meshio' 2>/dev/null") == 0) {
