@@ -733,14 +733,6 @@ void World::KeepReactionPoints() {
   }
 }
 
-// The trees of the MuJoCo bodies in contact this substep, and each contact's
-// point on its body, for the coupled step to solve with the deformables
-// (coupled_step.h, RigidSystem): the tree's block of MuJoCo's mass matrix,
-// its velocities, and dt times the generalized forces that act on it
-// besides the contacts: gravity and bias, passive forces, actuators, the
-// user's applied forces, and MuJoCo's constraint forces of the last step
-// (mj_step2 finds this step's after; the last step's keep a box that a
-// floor holds up, under a body resting on it, at rest in the prediction).
 // The generalized forces besides ours: MuJoCo's actuators now (mj_step2
 // computes them again from the same state), the user's body forces, the
 // rest as MuJoCo holds them (once a step: the same in every substep).
@@ -786,6 +778,14 @@ void World::AdvanceUnsolvedTrees(double dt) {
   }
 }
 
+// The trees of the MuJoCo bodies in contact this substep, and each contact's
+// point on its body, for the coupled step to solve with the deformables
+// (coupled_step.h, RigidSystem): the tree's block of MuJoCo's mass matrix,
+// its velocities, and dt times the generalized forces that act on it
+// besides the contacts: gravity and bias, passive forces, actuators, the
+// user's applied forces, and MuJoCo's constraint forces of the last step
+// (mj_step2 finds this step's after; the last step's keep a box that a
+// floor holds up, under a body resting on it, at rest in the prediction).
 void World::BuildRigidSystem(double dt, bool carried) {
   const mjModel* m = model_;
   mjData* d = data_;
@@ -1153,6 +1153,7 @@ void World::Step() {
               << " became non-finite at step " << steps_ << " (t = " << d->time
               << " s); try a smaller timestep, more substeps or a softer contact stiffness";
       metrics_.message = message.str();
+      std::fill(substep_moved_.begin(), substep_moved_.end(), 0);  // (MuJoCo's poses again)
       return;
     }
     // the next substep's trees start where this one's ended (MuJoCo, stepped
