@@ -613,6 +613,9 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
     ++world->tree_num_dofs_[root];
   }
   world->tree_slot_.assign(m->nbody, -1);
+  world->tree_carried_.assign(m->nbody, 0);
+  world->substep_pose_.resize(m->nbody);
+  world->substep_moved_.assign(m->nbody, 0);
   world->ours_.assign(6 * m->nbody, 0.0);
   world->user_.assign(6 * m->nbody, 0.0);
   world->written_.assign(6 * m->nbody, 0.0);
@@ -786,7 +789,7 @@ void World::AdvanceUnsolvedTrees(double dt) {
 // user's applied forces, and MuJoCo's constraint forces of the last step
 // (mj_step2 finds this step's after; the last step's keep a box that a
 // floor holds up, under a body resting on it, at rest in the prediction).
-void World::BuildRigidSystem(double dt, bool carried) {
+void World::BuildRigidSystem(double dt) {
   const mjModel* m = model_;
   mjData* d = data_;
   for (size_t t = 0; t < rigid_.trees.size(); ++t) tree_slot_[rigid_roots_[t]] = -1;
@@ -829,7 +832,7 @@ void World::BuildRigidSystem(double dt, bool carried) {
             jacobian_.data(), 3, m->nv)
             .middleCols(first, size);
     contacts_[c].rigid_point = static_cast<int>(rigid_.points.size()) - 1;
-    if (carried) {  // the point's velocity from the tree's carried one
+    if (tree_carried_[root]) {  // the point's velocity from the tree's carried one
       const Eigen::Vector3d v =
           rigid_point.jacobian * rigid_.trees[static_cast<size_t>(rigid_point.tree)].velocity;
       (contacts_[c].body_a < 0 ? contacts_[c].velocity_a : contacts_[c].velocity_b) = v;
@@ -838,19 +841,18 @@ void World::BuildRigidSystem(double dt, bool carried) {
 }
 
 Eigen::Isometry3d World::SubstepPose(int body) const {
-  return !substep_moved_.empty() && substep_moved_[body] ? substep_pose_[body]
-                                                         : BodyPose(data_, body);
+  return substep_moved_[body] ? substep_pose_[body] : BodyPose(data_, body);
 }
 
 Eigen::Vector3d World::AtStepStart(int body, const Eigen::Vector3d& p) const {
-  if (body <= 0 || substep_moved_.empty() || !substep_moved_[body]) return p;
+  if (body <= 0 || !substep_moved_[body]) return p;
   return BodyPose(data_, body) * (substep_pose_[body].inverse() * p);
 }
 
 void World::SubstepTwist(int body, Eigen::Vector3d& omega, Eigen::Vector3d& v) {
   const mjModel* m = model_;
-  if (tree_carried_.empty() || !tree_carried_[m->body_rootid[body]]) {  // MuJoCo's velocity
-    double velocity[6];  // angular, then linear at the body origin xpos
+  if (!tree_carried_[m->body_rootid[body]]) {  // MuJoCo's velocity
+    double velocity[6];                        // angular, then linear at the body origin xpos
     mj_objectVelocity(m, data_, mjOBJ_XBODY, body, velocity, 0);
     omega = Eigen::Vector3d(velocity[0], velocity[1], velocity[2]);
     v = Eigen::Vector3d(velocity[3], velocity[4], velocity[5]);
@@ -931,7 +933,7 @@ void World::ForEachGeomPenetration(
     Eigen::Matrix3d R_g =
         Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(data_->geom_xmat + 9 * g);
     const int body = m->geom_bodyid[g];
-    if (!substep_moved_.empty() && substep_moved_[body]) {  // (where a substep put its body)
+    if (substep_moved_[body]) {  // (where a substep put its body)
       const Eigen::Isometry3d moved = substep_pose_[body] * BodyPose(data_, body).inverse();
       x_g = moved * x_g;
       R_g = moved.linear() * R_g;
@@ -1118,9 +1120,7 @@ void World::Step() {
   other_forces_ready_ = false;
   free_acceleration_ready_ = false;
   substep_velocity_.assign(d->qvel, d->qvel + m->nv);
-  tree_carried_.assign(m->nbody, 0);
-  substep_moved_.assign(m->nbody, 0);
-  substep_pose_.resize(m->nbody);
+  std::fill(tree_carried_.begin(), tree_carried_.end(), 0);
   std::vector<DeformableBody*> bodies;
   for (auto& body : bodies_) bodies.push_back(body.get());
   for (int substep = 0; substep < substeps; ++substep) {
@@ -1138,7 +1138,7 @@ void World::Step() {
     }
     metrics_.collision_ms += MillisecondsSince(phase);
     KeepReactionPoints();
-    BuildRigidSystem(settings.dt, /*carried=*/substep > 0);
+    BuildRigidSystem(settings.dt);
     phase = Clock::now();
     ContactSettings contact_settings = contact_settings_;
     CoupledStepReport report = StepCoupled(bodies, contacts_, contact_settings, settings, &rigid_);

@@ -209,9 +209,8 @@ class World {
   // Before a step: where the reactions of the contacts with MuJoCo bodies,
   // then of the pins, will act (reaction_points_).
   void KeepReactionPoints();
-  // The rigid system of this substep (dt); `carried`: a later substep,
-  // whose trees start at the velocities the substeps before predicted.
-  void BuildRigidSystem(double dt, bool carried);
+  // The rigid system of this substep (dt), its trees at substep_velocity_.
+  void BuildRigidSystem(double dt);
   void FindOtherForces();                // other_forces_, once a step
   void AdvanceUnsolvedTrees(double dt);  // (substeps)
   void AddRigidForce(int body, const Eigen::Vector3d& point, const Eigen::Vector3d& force);
@@ -263,12 +262,12 @@ class World {
   bool free_acceleration_ready_ = false;
   std::vector<char> tree_carried_;               // per root body: substep_velocity_ is a substep's
   std::vector<Eigen::Isometry3d> substep_pose_;  // per body: see SubstepPose
-  std::vector<char> substep_moved_;              // per body: substep_pose_ holds its pose
-  std::vector<double> rotation_jacobian_;        // 3 x nv, row-major
-  std::vector<double> ours_;                     // nbody x 6, written last step
-  std::vector<double> user_;                     // nbody x 6, the user's part of xfrc_applied
-  std::vector<double> written_;                  // nbody x 6, xfrc_applied as written last step
-  std::vector<double> accumulated_;              // nbody x 6, this step
+  std::vector<char> substep_moved_;  // per body: substep_pose_ holds its pose (0 between steps)
+  std::vector<double> rotation_jacobian_;  // 3 x nv, row-major
+  std::vector<double> ours_;               // nbody x 6, written last step
+  std::vector<double> user_;               // nbody x 6, the user's part of xfrc_applied
+  std::vector<double> written_;            // nbody x 6, xfrc_applied as written last step
+  std::vector<double> accumulated_;        // nbody x 6, this step
   // whether other_forces_ holds this step's (MuJoCo's state does not change
   // between substeps: found once a step)
   bool other_forces_ready_ = false;
