@@ -614,6 +614,7 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
   }
   world->tree_slot_.assign(m->nbody, -1);
   world->tree_carried_.assign(m->nbody, 0);
+  world->tree_solved_.assign(m->nbody, 0);
   world->substep_pose_.resize(m->nbody);
   world->substep_moved_.assign(m->nbody, 0);
   world->ours_.assign(6 * m->nbody, 0.0);
@@ -879,6 +880,38 @@ void World::AdvanceSubstepPoses(double dt) {
   }
 }
 
+// MuJoCo moves a tree by dt times its velocity at the step's end; the
+// substeps moved it (the poses the deformables touched) by dt / substeps
+// times each substep's. A tree some substep solved is moved on by the
+// difference, so that it ends where the substeps left it (plus what
+// MuJoCo's own constraints changed its velocity by, over the whole step);
+// left where MuJoCo put it, a body pressed into a stiff deformable at a
+// pose the deformable never saw was pushed back the next step, which kept
+// a light arm rocking. A tree no substep solved keeps MuJoCo's position.
+void World::FollowSubstepPaths() {
+  const mjModel* m = model_;
+  mjData* d = data_;
+  if (std::none_of(tree_solved_.begin(), tree_solved_.end(), [](char c) { return c != 0; })) {
+    return;
+  }
+  step_displacement_.assign(m->nv, 0.0);
+  for (int root = 1; root < m->nbody; ++root) {
+    if (!tree_solved_[root]) continue;
+    for (int i = tree_first_dof_[root]; i < tree_first_dof_[root] + tree_num_dofs_[root]; ++i) {
+      step_displacement_[i] = substep_path_[i] - m->opt.timestep * substep_velocity_[i];
+    }
+  }
+  // mj_integratePos renormalizes every quaternion, also where it adds
+  // nothing: the joints of the other trees get their positions back
+  kept_qpos_.assign(d->qpos, d->qpos + m->nq);
+  mj_integratePos(m, d->qpos, step_displacement_.data(), 1.0);
+  for (int j = 0; j < m->njnt; ++j) {
+    if (tree_solved_[m->body_rootid[m->jnt_bodyid[j]]]) continue;
+    const int size = m->jnt_type[j] == mjJNT_FREE ? 7 : m->jnt_type[j] == mjJNT_BALL ? 4 : 1;
+    std::copy_n(kept_qpos_.data() + m->jnt_qposadr[j], size, d->qpos + m->jnt_qposadr[j]);
+  }
+}
+
 // force at a world point -> force and torque about the centre of mass xipos
 void World::AddRigidForce(int body, const Eigen::Vector3d& point, const Eigen::Vector3d& force) {
   if (body <= 0) return;  // the world body does not move
@@ -1121,6 +1154,8 @@ void World::Step() {
   free_acceleration_ready_ = false;
   substep_velocity_.assign(d->qvel, d->qvel + m->nv);
   std::fill(tree_carried_.begin(), tree_carried_.end(), 0);
+  std::fill(tree_solved_.begin(), tree_solved_.end(), 0);
+  substep_path_.assign(m->nv, 0.0);
   std::vector<DeformableBody*> bodies;
   for (auto& body : bodies_) bodies.push_back(body.get());
   for (int substep = 0; substep < substeps; ++substep) {
@@ -1164,10 +1199,12 @@ void World::Step() {
       Eigen::Map<Eigen::VectorXd>(substep_velocity_.data() + tree_first_dof_[rigid_roots_[t]],
                                   tree.velocity_end.size()) = tree.velocity_end;
       tree_carried_[rigid_roots_[t]] = 1;
+      tree_solved_[rigid_roots_[t]] = 1;
     }
-    if (substep + 1 < substeps) {
+    if (substeps > 1) {
       if (scene_.solver.implicit_rigid) AdvanceUnsolvedTrees(settings.dt);
-      AdvanceSubstepPoses(settings.dt);
+      for (int i = 0; i < m->nv; ++i) substep_path_[i] += settings.dt * substep_velocity_[i];
+      if (substep + 1 < substeps) AdvanceSubstepPoses(settings.dt);
     }
     // reactions on the rigid bodies, averaged over substeps, at the points
     // kept before the step
@@ -1205,6 +1242,7 @@ void World::Step() {
   }
   phase = Clock::now();
   mj_step2(m, d);
+  if (substeps > 1) FollowSubstepPaths();
   // bring poses and velocities (xpos, xipos, cvel) up to the new state, so
   // that what the world reports between steps is current
   mj_kinematics(m, d);

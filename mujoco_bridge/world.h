@@ -224,6 +224,9 @@ class World {
   Eigen::Vector3d AtStepStart(int body, const Eigen::Vector3d& p) const;
   void SubstepTwist(int body, Eigen::Vector3d& omega, Eigen::Vector3d& v);
   void AdvanceSubstepPoses(double dt);
+  // After MuJoCo's step: moves the trees the substeps solved as far as the
+  // substeps did (see the definition).
+  void FollowSubstepPaths();
 
   SceneSpec scene_;
   WorldOptions options_;
@@ -260,7 +263,14 @@ class World {
   std::vector<double> substep_velocity_;
   std::vector<double> free_acceleration_;  // nv: M^-1 other_forces_ (substeps)
   bool free_acceleration_ready_ = false;
-  std::vector<char> tree_carried_;               // per root body: substep_velocity_ is a substep's
+  std::vector<char> tree_carried_;  // per root body: substep_velocity_ is a substep's
+  // per root body: a substep of this step solved the tree (RigidSystem)
+  std::vector<char> tree_solved_;
+  // nv: the sum over this step's substeps of dt times substep_velocity_ at
+  // each one's end: how far the substeps moved the bodies
+  std::vector<double> substep_path_;
+  std::vector<double> step_displacement_;        // nv: see FollowSubstepPaths
+  std::vector<double> kept_qpos_;                // nq: see FollowSubstepPaths
   std::vector<Eigen::Isometry3d> substep_pose_;  // per body: see SubstepPose
   std::vector<char> substep_moved_;  // per body: substep_pose_ holds its pose (0 between steps)
   std::vector<double> rotation_jacobian_;  // 3 x nv, row-major

@@ -17,6 +17,7 @@
 
 #include "mesh/error.h"
 #include "mesh/text_reader.h"
+#include "tests/mujoco_bridge/stiff_slab_scenes.h"
 #include "tests/mujoco_bridge/temp_dir.h"
 
 namespace tetcosim {
@@ -453,27 +454,6 @@ TEST(Coupling, AttachedVerticesFollowABodySpinningAboutItsOrigin) {
   }
 }
 
-// A scene of `bodies` over a stiff slab (E = 1e7 Pa, 4 cm thick, its top at
-// z = 0, its bottom pinned to a static body) of the given half-sizes and
-// cells in x and y, with `deformable` (proxies, settings) beside it.
-std::string OnAStiffSlab(const std::string& bodies, const std::string& deformable,
-                         const std::string& half_size, const std::string& cells) {
-  return R"(<mujoco>
-  <option timestep="0.001" gravity="0 0 -9.81"/>
-  <worldbody>
-    <body name="anchor"/>)" +
-         bodies + R"(
-  </worldbody>
-  <deformable>
-    <contact friction="0.5"/>)" +
-         deformable + R"(
-    <tetbody name="slab" shape="box" size=")" +
-         half_size + R"( 0.02" resolution=")" + cells + R"( 2" pos="0 0 -0.02" young="1e7"/>
-    <attach tetbody="slab" body="anchor" box="-1 -1 -1 1 1 -0.039"/>
-  </deformable>
-</mujoco>)";
-}
-
 // A light rigid box (50 g, its proxy) resting on a stiff deformable slab
 // (E = 1e7 Pa, pinned): each proxy vertex's contact is far stiffer than the
 // box's mass allows an explicit step (dt sqrt(k / m) > 2; moved at its start
@@ -519,21 +499,7 @@ TEST(Coupling, LightRigidBodyRestsOnAStiffDeformable) {
 // links beyond it. (Explicit, the arm was thrown about at 1e4 J.)
 TEST(Coupling, LightArmRestsItsHandOnAStiffDeformable) {
   TempDir dir;
-  const std::string path = dir.Write("arm.xml", OnAStiffSlab(R"(
-    <body name="upper" pos="-0.2 0 0.06">
-      <joint type="hinge" axis="0 1 0"/>
-      <geom type="capsule" fromto="0 0 0 0.1 0 0" size="0.01" mass="0.05" contype="0"
-            conaffinity="0"/>
-      <body name="lower" pos="0.1 0 0">
-        <joint type="hinge" axis="0 1 0"/>
-        <geom name="hand" type="box" pos="0.05 0 -0.02" size="0.05 0.02 0.02" mass="0.03"
-              contype="0" conaffinity="0"/>
-      </body>
-    </body>)",
-                                                             R"(
-    <solver tolerance="1e-12"/>
-    <rigidtet body="lower" geom="hand" resolution="3"/>)",
-                                                             "0.15 0.1", "15 10"));
+  const std::string path = dir.Write("arm.xml", ArmOnAStiffSlab(1));
   std::unique_ptr<World> world = World::Load(path);
   // nothing else acts on the arm (no joint limits, no MuJoCo contacts): the
   // step's prediction of its joint velocities is what MuJoCo then finds
