@@ -24,6 +24,11 @@
 namespace tetcosim {
 namespace {
 
+// MuJoCo's matrices are row-major: xmat, ximat, geom_xmat (3 x 3) and the
+// Jacobians of mj_jac and mj_jacBody (3 x nv)
+using MjRotation = Eigen::Matrix<double, 3, 3, Eigen::RowMajor>;
+using MjJacobian = Eigen::Matrix<double, 3, Eigen::Dynamic, Eigen::RowMajor>;
+
 // What a tetrahedron costs in memory once loaded, measured as the peak
 // resident size of `tetcosim info` over growing resolutions (a box tetbody
 // of 663k and 1.57M tets: 1.40 and 1.35 kB each; a box rigidtet of 331k:
@@ -117,8 +122,7 @@ BodyMotion MotionOf(const mjModel* m, const mjData* d, int body) {
   BodyMotion motion;
   motion.omega = Eigen::Vector3d(velocity[0], velocity[1], velocity[2]);
   motion.velocity = Eigen::Vector3d(velocity[3], velocity[4], velocity[5]);
-  const Eigen::Matrix3d R_WI =
-      Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(d->ximat + 9 * body);
+  const Eigen::Matrix3d R_WI = Eigen::Map<const MjRotation>(d->ximat + 9 * body);
   const Eigen::Vector3d inertia = Eigen::Map<const Eigen::Vector3d>(m->body_inertia + 3 * body);
   motion.spin = R_WI * inertia.cwiseProduct(R_WI.transpose() * motion.omega);
   return motion;
@@ -128,7 +132,7 @@ BodyMotion MotionOf(const mjModel* m, const mjData* d, int body) {
 Eigen::Isometry3d BodyPose(const mjData* d, int body) {
   Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
   X.translation() = Eigen::Map<const Eigen::Vector3d>(d->xpos + 3 * body);
-  X.linear() = Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(d->xmat + 9 * body);
+  X.linear() = Eigen::Map<const MjRotation>(d->xmat + 9 * body);
   return X;
 }
 
@@ -829,9 +833,7 @@ void World::BuildRigidSystem(double dt) {
     RigidPoint& rigid_point = rigid_.points.emplace_back();
     rigid_point.tree = tree_slot_[root];
     rigid_point.jacobian =
-        Eigen::Map<const Eigen::Matrix<double, 3, Eigen::Dynamic, Eigen::RowMajor>>(
-            jacobian_.data(), 3, m->nv)
-            .middleCols(first, size);
+        Eigen::Map<const MjJacobian>(jacobian_.data(), 3, m->nv).middleCols(first, size);
     contacts_[c].rigid_point = static_cast<int>(rigid_.points.size()) - 1;
     if (tree_carried_[root]) {  // the point's velocity from the tree's carried one
       const Eigen::Vector3d v =
@@ -864,10 +866,9 @@ void World::SubstepTwist(int body, Eigen::Vector3d& omega, Eigen::Vector3d& v) {
   jacobian_.resize(3 * static_cast<size_t>(m->nv));
   rotation_jacobian_.resize(3 * static_cast<size_t>(m->nv));
   mj_jacBody(m, data_, jacobian_.data(), rotation_jacobian_.data(), body);
-  using Jacobian = Eigen::Matrix<double, 3, Eigen::Dynamic, Eigen::RowMajor>;
   const Eigen::Map<const Eigen::VectorXd> qvel(substep_velocity_.data(), m->nv);
-  v = Eigen::Map<const Jacobian>(jacobian_.data(), 3, m->nv) * qvel;
-  omega = Eigen::Map<const Jacobian>(rotation_jacobian_.data(), 3, m->nv) * qvel;
+  v = Eigen::Map<const MjJacobian>(jacobian_.data(), 3, m->nv) * qvel;
+  omega = Eigen::Map<const MjJacobian>(rotation_jacobian_.data(), 3, m->nv) * qvel;
 }
 
 void World::AdvanceSubstepPoses(double dt) {
@@ -963,8 +964,7 @@ void World::ForEachGeomPenetration(
       continue;
     }
     Eigen::Vector3d x_g = Eigen::Map<const Eigen::Vector3d>(data_->geom_xpos + 3 * g);
-    Eigen::Matrix3d R_g =
-        Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(data_->geom_xmat + 9 * g);
+    Eigen::Matrix3d R_g = Eigen::Map<const MjRotation>(data_->geom_xmat + 9 * g);
     const int body = m->geom_bodyid[g];
     if (substep_moved_[body]) {  // (where a substep put its body)
       const Eigen::Isometry3d moved = substep_pose_[body] * BodyPose(data_, body).inverse();
