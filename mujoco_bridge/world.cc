@@ -1242,7 +1242,10 @@ void World::Step() {
   }
   phase = Clock::now();
   mj_step2(m, d);
-  if (substeps > 1) FollowSubstepPaths();
+  bool reset = false;
+  for (int k = 0; k < 3; ++k) reset |= d->warning[kBadState[k]].number != bad_before[k];
+  // (a reset put MuJoCo's bodies back at their initial state: no path to follow)
+  if (substeps > 1 && !reset) FollowSubstepPaths();
   // bring poses and velocities (xpos, xipos, cvel) up to the new state, so
   // that what the world reports between steps is current
   mj_kinematics(m, d);

@@ -698,6 +698,34 @@ TEST(WorldStep, UnstableRigidStateIsAStatus) {
       << world->metrics().message;
 }
 
+// A reset inside mj_step2 (a huge force on the box while the cube lies on
+// it, so that its acceleration is beyond what MuJoCo accepts) puts the box
+// back at its initial pose, and MuJoCo steps it once from rest: with
+// substeps, the box is not then moved on along the substeps' path (which
+// the force had thrown far out).
+TEST(WorldStep, ARigidResetWithSubstepsLeavesTheBodiesWhereMuJoCoPutThem) {
+  TempDir dir;
+  std::string scene =
+      ReadFileContents(std::string(TETCOSIM_SOURCE_DIR) + "/models/scenes/cube_on_box.xml");
+  const std::string contact = "<contact method=\"consistent\" friction=\"0.6\"/>";
+  ASSERT_NE(scene.find(contact), std::string::npos);
+  scene.replace(scene.find(contact), contact.size(), contact + "<solver substeps=\"3\"/>");
+  std::unique_ptr<World> world = World::Load(dir.Write("substeps.xml", scene));
+  for (int s = 0; s < 150 && world->metrics().colliding_points == 0; ++s) world->Step();
+  ASSERT_GT(world->metrics().colliding_points, 0) << "the cube lies on the box";
+  const mjModel* m = world->mj_model();
+  world->SetController([](World& w) { w.mj_data()->qfrc_applied[2] = 1e15; });
+  world->Step();
+  EXPECT_EQ(world->metrics().status, StepStatus::kDiverged);
+  EXPECT_NE(world->metrics().message.find("MuJoCo found a non-finite or huge acceleration"),
+            std::string::npos)
+      << world->metrics().message;
+  // one step from rest at qpos0 under gravity: dt^2 g = 4e-5 m
+  for (int i = 0; i < m->nq; ++i) {
+    EXPECT_NEAR(world->mj_data()->qpos[i], m->qpos0[i], 1e-4) << "qpos " << i;
+  }
+}
+
 // A scene whose meshes would need more memory than there is is an error at
 // the element that goes over, before any mesh is built (else the kernel
 // kills the process while it builds them). cube_on_box's deformable has 384
