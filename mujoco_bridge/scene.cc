@@ -204,7 +204,7 @@ class SceneParser {
         } else if (kind == "attach") {
           scene.attachments.push_back(Attach(child));
         } else if (kind == "contact") {
-          CheckAttributes(child, {"method", "stiffness", "damping", "friction"});
+          CheckAttributes(child, {"method", "stiffness", "damping", "friction", "slip"});
           if (const char* method = child->Attribute("method")) {
             std::string m(method);
             if (m == "consistent") {
@@ -216,6 +216,9 @@ class SceneParser {
             }
           }
           ContactAttributes(child, scene.contact);
+          // (below 1 um/s the friction damping, mu f_n / v_s, would make the
+          // step's linear system far stiffer than its other terms)
+          scene.slip = Number(child, "slip", 1e-6, 1.0);
         } else if (kind == "solver") {
           CheckAttributes(child, {"substeps", "linear", "tolerance", "maxiter", "rigid"});
           scene.solver.substeps = static_cast<int>(Number(child, "substeps", 1, 1000).value_or(1));

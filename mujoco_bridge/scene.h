@@ -74,6 +74,9 @@ struct SceneSpec {
   std::string mjcf;  // the MJCF without <deformable>
   DepthMethod method = DepthMethod::kConsistent;
   ContactParams contact;
+  // friction's smoothing velocity v_s (m/s): below it, friction grows with
+  // the slip (ContactSettings); default 1e-3
+  std::optional<double> slip;
   SolverSpec solver;
   std::vector<TetBodySpec> tetbodies;
   std::vector<RigidTetSpec> rigidtets;

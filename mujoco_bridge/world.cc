@@ -414,6 +414,7 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
 
   // deformables (their meshes come first: the MJCF gets a skin for each)
   const ContactParams& scene_contact = scene.contact;
+  if (scene.slip) world->contact_settings_.slip_velocity = *scene.slip;
   std::string skins;
   const double available_memory = options.memory_limit.value_or(AvailableMemory());
   double needed_memory = 0.0;

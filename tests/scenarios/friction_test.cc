@@ -30,7 +30,7 @@ constexpr double kMu = 0.4;
 // box and the slab: 2 x 0.6 x 0.1 m in 8 x 8 x 8 cells, whose surface
 // vertices each stand for far more area than the block's bottom)
 enum class Floor { kPlaneGeom, kStaticProxy, kDeformableSlab };
-std::string Scene(Floor floor, double theta) {
+std::string Scene(Floor floor, double theta, const std::string& contact) {
   char gravity[96];
   std::snprintf(gravity, sizeof gravity, "%.17g 0 %.17g", kGravity * std::sin(theta),
                 -kGravity * std::cos(theta));
@@ -51,7 +51,8 @@ std::string Scene(Floor floor, double theta) {
         "<attach tetbody='slab' body='anchor' box='-2 -1 -0.2 2 1 -0.09'/>";
   }
   return std::string("<mujoco><option timestep='0.002' gravity='") + gravity + "'/><worldbody>" +
-         floor_xml + "</worldbody><deformable><contact friction='0.4'/>" + proxy_xml +
+         floor_xml + "</worldbody><deformable><contact friction='0.4'" + contact + "/>" +
+         proxy_xml +
          "<tetbody name='block' shape='box' size='0.05 0.05 0.03' resolution='8' "
          "pos='-0.5 0 0.031' density='1000' young='2e5' poisson='0.3' damping='0 0.002'/>"
          "</deformable></mujoco>";
@@ -64,9 +65,10 @@ struct Slide {
   double max_speed = 0.0;
 };
 
-Slide RunOnSlope(Floor floor, double theta) {
+// (contact: more attributes of <contact>)
+Slide RunOnSlope(Floor floor, double theta, const std::string& contact = "") {
   TempDir dir("tetcosim_friction");
-  std::unique_ptr<World> world = World::Load(dir.Write("scene.xml", Scene(floor, theta)));
+  std::unique_ptr<World> world = World::Load(dir.Write("scene.xml", Scene(floor, theta, contact)));
   const DeformableBody& block = world->deformable(world->DeformableIndex("block"));
   const double mass = block.model().total_mass();
   auto speed = [&] { return block.LinearMomentum().x() / mass; };
@@ -107,6 +109,22 @@ TEST(Friction, HoldsBelowTheFrictionAngleButForTheSmoothingsCreep) {
                 Name(floor), slide.acceleration, slide.max_speed, creep);
     EXPECT_NEAR(slide.max_speed, creep, 0.02 * creep) << Name(floor);
     EXPECT_NEAR(slide.acceleration, 0.0, 1e-3) << Name(floor);
+  }
+}
+
+// The scene's slip velocity sets the creep: a tenth of the default, a
+// tenth of the creep
+TEST(Friction, TheSceneSlipVelocitySetsTheCreep) {
+  const double q = 0.5;
+  const double theta = std::atan(q * kMu);
+  const double slip = 0.1 * ContactSettings{}.slip_velocity;
+  const double creep = slip * q / std::sqrt(1.0 - q * q);
+  for (Floor floor : {Floor::kPlaneGeom, Floor::kDeformableSlab}) {
+    const Slide slide = RunOnSlope(floor, theta, " slip='" + std::to_string(slip) + "'");
+    std::printf("%s: largest speed %.4g m/s, creep %.4g m/s\n", Name(floor), slide.max_speed,
+                creep);
+    EXPECT_NEAR(slide.max_speed, creep, 0.02 * creep) << Name(floor);
+    EXPECT_NEAR(slide.acceleration, 0.0, 1e-4) << Name(floor);
   }
 }
 
