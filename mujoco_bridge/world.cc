@@ -896,17 +896,16 @@ void World::FollowSubstepPaths() {
   if (std::none_of(tree_solved_.begin(), tree_solved_.end(), [](char c) { return c != 0; })) {
     return;
   }
-  step_displacement_.assign(m->nv, 0.0);
   for (int root = 1; root < m->nbody; ++root) {
-    if (!tree_solved_[root]) continue;
     for (int i = tree_first_dof_[root]; i < tree_first_dof_[root] + tree_num_dofs_[root]; ++i) {
-      step_displacement_[i] = substep_path_[i] - m->opt.timestep * substep_velocity_[i];
+      substep_path_[i] =
+          tree_solved_[root] ? substep_path_[i] - m->opt.timestep * substep_velocity_[i] : 0.0;
     }
   }
   // mj_integratePos renormalizes every quaternion, also where it adds
   // nothing: the joints of the other trees get their positions back
   kept_qpos_.assign(d->qpos, d->qpos + m->nq);
-  mj_integratePos(m, d->qpos, step_displacement_.data(), 1.0);
+  mj_integratePos(m, d->qpos, substep_path_.data(), 1.0);
   for (int j = 0; j < m->njnt; ++j) {
     if (tree_solved_[m->body_rootid[m->jnt_bodyid[j]]]) continue;
     const int size = m->jnt_type[j] == mjJNT_FREE ? 7 : m->jnt_type[j] == mjJNT_BALL ? 4 : 1;

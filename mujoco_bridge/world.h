@@ -267,9 +267,9 @@ class World {
   // per root body: a substep of this step solved the tree (RigidSystem)
   std::vector<char> tree_solved_;
   // nv: the sum over this step's substeps of dt times substep_velocity_ at
-  // each one's end: how far the substeps moved the bodies
+  // each one's end: how far the substeps moved the bodies (FollowSubstepPaths
+  // turns it into what is left to move them after MuJoCo's step)
   std::vector<double> substep_path_;
-  std::vector<double> step_displacement_;        // nv: see FollowSubstepPaths
   std::vector<double> kept_qpos_;                // nq: see FollowSubstepPaths
   std::vector<Eigen::Isometry3d> substep_pose_;  // per body: see SubstepPose
   std::vector<char> substep_moved_;  // per body: substep_pose_ holds its pose (0 between steps)
