@@ -216,8 +216,9 @@ class SceneParser {
             }
           }
           ContactAttributes(child, scene.contact);
-          // (below 1 um/s the friction damping, mu f_n / v_s, would make the
-          // step's linear system far stiffer than its other terms)
+          // (0 would divide by zero in the friction damping, mu f_n / v_s, of
+          // a sticking contact; 1 um/s is the smallest tried: the slope of
+          // tests/scenarios/friction_test.cc holds, gripper.xml solves)
           scene.slip = Number(child, "slip", 1e-6, 1.0);
         } else if (kind == "solver") {
           CheckAttributes(child, {"substeps", "linear", "tolerance", "maxiter", "rigid"});
