@@ -706,8 +706,10 @@ void PenetrationSolver::FindCollidingPointsAndHashSurfaces(std::span<const Colli
   Clock::time_point hash_end = start, surfaces_end = start;
 #pragma omp parallel num_threads(threads)
   {
+    // (an even share each; the loop's closing barrier is needed: the
+    // surfaces read the outcodes)
 #pragma omp for schedule(static)
-    for (int part = 0; part < threads; ++part) {  // (an even share each)
+    for (int part = 0; part < threads; ++part) {
       colliding_.ClassifyVertices(
           static_cast<int>(static_cast<long>(num_vertices) * part / threads),
           static_cast<int>(static_cast<long>(num_vertices) * (part + 1) / threads));
