@@ -4,8 +4,15 @@
 #include <algorithm>
 #include <cmath>
 
+#include "mesh/parallel_for.h"
+
 namespace tetcosim {
 namespace {
+
+// The bodies that run their own loops on one thread are shared out among
+// the step's threads from this many tetrahedra per thread (fewer: a
+// parallel region costs more than the work it shares out).
+constexpr long kMinTetsPerProductThread = 1024;
 
 // a contact's coupling: u = J v + c, J = [+1 at A's vertex, -w_i at B's,
 // +-J_r on a rigid side's tree]
@@ -147,9 +154,45 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     v.segment(tree_offset[t], size) = tree.velocity;
     b.segment(tree_offset[t], size) = tree.mass * tree.velocity + tree.impulse;
   }
+  // The bodies that run their own loops on one thread (all but bodies of at
+  // least 16384 tets: DeformableBody::RunsOnSeveralThreads) prepare their
+  // systems and compute their products side by side, in runs of
+  // consecutive bodies of about equal numbers of tetrahedra, one run per
+  // thread. A body's part is the same whichever thread computes it, so
+  // the result does not depend on how they are shared out.
+  Eigen::setNbThreads(std::max(1, settings.num_threads));
+  std::vector<int> shared_bodies, threaded_bodies;
+  long shared_tets = 0;
+  for (int k = 0; k < num_bodies; ++k) {
+    if (DeformableBody::RunsOnSeveralThreads(bodies[k]->model(), settings)) {
+      threaded_bodies.push_back(k);
+    } else {
+      shared_bodies.push_back(k);
+      shared_tets += bodies[k]->model().num_tets();
+    }
+  }
+  const int num_runs = static_cast<int>(
+      std::clamp<long>(std::min<long>(shared_tets / kMinTetsPerProductThread, settings.num_threads),
+                       1, std::max<long>(1, static_cast<long>(shared_bodies.size()))));
+  std::vector<int> run_begin(num_runs + 1, static_cast<int>(shared_bodies.size()));
+  run_begin[0] = 0;
+  long tets_before = 0;
+  int run = 1;
+  for (int i = 0; i < static_cast<int>(shared_bodies.size()) && run < num_runs; ++i) {
+    // (body i opens run r once the bodies before it hold r / num_runs of the tets)
+    while (run < num_runs && tets_before * num_runs >= shared_tets * run) run_begin[run++] = i;
+    tets_before += bodies[shared_bodies[i]]->model().num_tets();
+  }
+  auto for_each_body = [&](const auto& visit) {  // visit(k) for every body k
+    ParallelFor(num_runs, 0, num_runs, [&](int r) {
+      for (int i = run_begin[r]; i < run_begin[r + 1]; ++i) visit(shared_bodies[i]);
+    });
+    for (int k : threaded_bodies) visit(k);
+  };
+  for_each_body([&](int k) { bodies[k]->PrepareStep(settings); });
+
   for (int k = 0; k < num_bodies; ++k) {
     DeformableBody& body = *bodies[k];
-    body.PrepareStep(settings);
     const int size = 3 * body.num_vertices();
     v.segment(offset[k], size) = Eigen::Map<const Eigen::VectorXd>(body.velocities().data(), size);
     b.segment(offset[k], size) = body.system_rhs();
@@ -200,9 +243,8 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
 
   // y = A x
   auto multiply = [&](const Eigen::VectorXd& x, Eigen::VectorXd& y) {
-    for (int k = 0; k < num_bodies; ++k) {
-      bodies[k]->MultiplySystem(x.data() + offset[k], y.data() + offset[k]);
-    }
+    for_each_body(
+        [&](int k) { bodies[k]->MultiplySystem(x.data() + offset[k], y.data() + offset[k]); });
     for (int t = 0; t < num_trees; ++t) {
       const Eigen::MatrixXd& mass = rigid->trees[t].mass;
       y.segment(tree_offset[t], mass.rows()).noalias() =

@@ -157,7 +157,7 @@ void DeformableBody::Assemble(const StepSettings& settings, bool matrix) {
   b_.setZero();
   assembled_ = matrix;
   mass_scale_ = mass_scale;
-  num_threads_ = model.num_tets() >= kMinTetsForThreads ? std::max(1, settings.num_threads) : 1;
+  num_threads_ = RunsOnSeveralThreads(model, settings) ? settings.num_threads : 1;
   const std::vector<ElementBatch>& batches =
       num_threads_ > 1 ? model.colored_batches() : model.serial_batches();
   batch_systems_.resize(batches.size());
@@ -530,10 +530,13 @@ StepReport DeformableBody::Step(const StepSettings& settings) {
   return report;
 }
 
+bool DeformableBody::RunsOnSeveralThreads(const FemModel& model, const StepSettings& settings) {
+  return model.num_tets() >= kMinTetsForThreads && settings.num_threads > 1;
+}
+
 void DeformableBody::PrepareStep(const StepSettings& settings) {
-  Eigen::setNbThreads(std::max(1, settings.num_threads));
   // kAuto: see StepSettings::system_product
-  const bool threaded = model_->num_tets() >= kMinTetsForThreads && settings.num_threads > 1;
+  const bool threaded = RunsOnSeveralThreads(*model_, settings);
   const bool matrix = settings.system_product == SystemProduct::kAssembled ||
                       (settings.system_product == SystemProduct::kAuto && last_iterations_ >= 12 &&
                        (model_->num_tets() <= kMaxTetsToAssemble || threaded));

@@ -61,8 +61,10 @@ struct StepSettings {
   int rotation_iterations = 20;
   double rotation_tolerance = 1e-8;
   // For the element loops and the products of bodies of at least 16384
-  // tets (smaller bodies run on one thread: measured, a second thread
-  // there costs more in synchronisation than it saves).
+  // tets (within a smaller body a second thread costs more in
+  // synchronisation than it saves, measured; StepCoupled shares the smaller
+  // bodies out among the threads instead, body by body, from 1024 tets a
+  // thread).
   int num_threads = 1;
   // How the conjugate-gradient solve applies the system matrix A (the
   // Cholesky solver always assembles it). Measured (bench/deformable_bench,
@@ -133,12 +135,19 @@ class DeformableBody {
   // (coupled_step.h). PrepareStep assembles the system A v+ = b (without the
   // pins, which the caller prescribes); FinishStep commits v+ (#V x 3, flat)
   // if finite, and takes the pin forces from residual = A_total v+ - b_total.
+  // (Eigen's own thread count is the caller's: StepCoupled sets it.)
   void PrepareStep(const StepSettings& settings);
   const Eigen::SparseMatrix<double, Eigen::RowMajor, int>& system_matrix() const { return A_; }
   const Eigen::VectorXd& system_rhs() const { return b_; }
   // Whether the last PrepareStep assembled system_matrix() (else it is
   // stale, and the products are element-wise).
   bool system_assembled() const { return assembled_; }
+  // Whether a body of this model runs its element loops and products on
+  // several threads with these settings (at least 16384 tets, and
+  // StepSettings::num_threads above one); else on the calling thread alone,
+  // and then PrepareStep and MultiplySystem of different bodies may run at
+  // once on different threads.
+  static bool RunsOnSeveralThreads(const FemModel& model, const StepSettings& settings);
   // y = A x (3V each) with the system of the last PrepareStep: assembled, the
   // same as system_matrix() * x but faster, since the three rows of a vertex
   // share their columns (one index and three contiguous x per neighbour);
