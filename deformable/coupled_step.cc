@@ -12,7 +12,7 @@ namespace {
 // The bodies that run their own loops on one thread are shared out among
 // the step's threads from this many tetrahedra per thread (fewer: a
 // parallel region costs more than the work it shares out).
-constexpr long kMinTetsPerProductThread = 1024;
+constexpr long kMinSharedTetsPerThread = 1024;
 
 // a contact's coupling: u = J v + c, J = [+1 at A's vertex, -w_i at B's,
 // +-J_r on a rigid side's tree]
@@ -172,7 +172,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     }
   }
   const int num_runs = static_cast<int>(
-      std::clamp<long>(std::min<long>(shared_tets / kMinTetsPerProductThread, settings.num_threads),
+      std::clamp<long>(std::min<long>(shared_tets / kMinSharedTetsPerThread, settings.num_threads),
                        1, std::max<long>(1, static_cast<long>(shared_bodies.size()))));
   std::vector<int> run_begin(num_runs + 1, static_cast<int>(shared_bodies.size()));
   run_begin[0] = 0;
