@@ -1242,26 +1242,27 @@ void World::Step() {
   }
   phase = Clock::now();
   mj_step2(m, d);
-  bool reset = false;
-  for (int k = 0; k < 3; ++k) reset |= d->warning[kBadState[k]].number != bad_before[k];
+  // the first of MuJoCo's bad-state warnings this step raised, or -1
+  int bad_state = -1;
+  for (int k = 0; k < 3 && bad_state < 0; ++k) {
+    if (d->warning[kBadState[k]].number != bad_before[k]) bad_state = k;
+  }
   // (a reset put MuJoCo's bodies back at their initial state: no path to follow)
-  if (substeps > 1 && !reset) FollowSubstepPaths();
+  if (substeps > 1 && bad_state < 0) FollowSubstepPaths();
   // bring poses and velocities (xpos, xipos, cvel) up to the new state, so
   // that what the world reports between steps is current
   mj_kinematics(m, d);
   mj_comPos(m, d);
   mj_comVel(m, d);
   metrics_.mujoco_ms += MillisecondsSince(phase);
-  for (int k = 0; k < 3; ++k) {
-    if (d->warning[kBadState[k]].number == bad_before[k]) continue;
+  if (bad_state >= 0) {
     constexpr const char* kWhat[3] = {"position", "velocity", "acceleration"};
     metrics_.status = StepStatus::kDiverged;
     std::ostringstream message;
-    message << "MuJoCo found a non-finite or huge " << kWhat[k] << " at DOF "
-            << d->warning[kBadState[k]].lastinfo << " at step " << steps_
+    message << "MuJoCo found a non-finite or huge " << kWhat[bad_state] << " at DOF "
+            << d->warning[kBadState[bad_state]].lastinfo << " at step " << steps_
             << " and reset its bodies; try a smaller timestep or softer actuators and joints";
     metrics_.message = message.str();
-    break;
   }
   ++steps_;
   metrics_.total_ms = MillisecondsSince(start);
