@@ -45,6 +45,21 @@ CLI::Validator NonNegativeFiniteNumber() {
                      "NONNEGATIVE");
 }
 
+CLI::Validator StepNumber() {
+  return CLI::Validator(
+      [](std::string& text) -> std::string {
+        const std::string wanted = "' must be a whole number from 1 to 2^53 (a count of steps)";
+        if (text.empty() || text.size() > 16 ||
+            !std::all_of(text.begin(), text.end(), [](char c) { return c >= '0' && c <= '9'; })) {
+          return "'" + text + wanted;
+        }
+        const long long value = std::strtoll(text.c_str(), nullptr, 10);  // (16 digits fit)
+        if (value < 1 || value > static_cast<long long>(kMaxWholeSteps)) return "'" + text + wanted;
+        return {};
+      },
+      "STEPS", "STEPS");
+}
+
 long StepCount(double seconds, double dt, const std::string& option) {
   const std::optional<long> steps = WholeSteps(seconds, dt);
   if (!steps) {

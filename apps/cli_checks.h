@@ -19,6 +19,10 @@ CLI::Validator FiniteNumber();
 CLI::Validator PositiveFiniteNumber();
 // A finite number >= 0.
 CLI::Validator NonNegativeFiniteNumber();
+// A whole number from 1 to 2^53 (kMaxWholeSteps), written in digits: a count
+// of steps ("0", "-3", "1.5" and "1e20" are errors that say so, where CLI11's
+// PositiveNumber printed the whole range of double).
+CLI::Validator StepNumber();
 
 // WholeSteps (mujoco_bridge/world.h), at least 1, for seconds > 0 that a
 // command-line option gave: Error, naming `option`, when there are more than

@@ -285,7 +285,7 @@ void AddRunCommand(CLI::App& app) {
   auto* duration = run->add_option("--duration", options->duration, "Simulated seconds (default 1)")
                        ->check(PositiveFiniteNumber());
   run->add_option("--steps", options->steps, "Number of steps")
-      ->check(CLI::PositiveNumber)
+      ->check(StepNumber())
       ->excludes(duration);
   run->add_option("--method", options->method, "consistent or closest (default: the scene's)")
       ->check(CLI::IsMember({"consistent", "closest"}));
