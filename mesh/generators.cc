@@ -3,6 +3,7 @@
 #include <array>
 #include <charconv>
 #include <cmath>
+#include <cstdio>
 #include <iomanip>
 #include <map>
 #include <numbers>
@@ -391,8 +392,16 @@ bool IsShapeSpec(const std::string& text) {
 RawMesh MakeShape(const std::string& shape, const std::vector<double>& size,
                   const std::vector<int>& resolution, int split, const std::string& where) {
   auto fail = [&](const std::string& message) -> void { throw Error(where + ": " + message); };
+  // (outside this range the volumes of the elements overflow or underflow:
+  // a 1e300 m box was refused as degenerate, its volume NaN)
+  constexpr double kMinSize = 1e-9, kMaxSize = 1e9;
   for (double s : size) {
-    if (!std::isfinite(s) || s <= 0.0) fail("every size must be a positive number of metres");
+    if (!(s >= kMinSize && s <= kMaxSize)) {
+      char message[128];
+      std::snprintf(message, sizeof(message),
+                    "size %g is not a length from 1e-9 to 1e9 metres; give one in that range", s);
+      fail(message);
+    }
   }
   for (int r : resolution) {
     if (r < 0 || r > 256) fail("resolution " + std::to_string(r) + " is outside 0..256");

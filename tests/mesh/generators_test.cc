@@ -115,6 +115,18 @@ TEST(Generators, BadSpecsAreErrors) {
         "sphere:radius=1", "sphere:res=1"}) {
     EXPECT_THROW(MakeShape(spec), Error) << spec;
   }
+  // sizes whose elements' volumes would overflow or underflow say so
+  for (const char* spec : {"box:size=1e300:res=2", "box:size=1e-300:res=2", "sphere:size=0",
+                           "capsule:size=0.1,inf", "box:size=1,nan,1"}) {
+    try {
+      MakeShape(spec);
+      ADD_FAILURE() << spec << " was meshed";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("is not a length from 1e-9 to 1e9 metres"),
+                std::string::npos)
+          << e.what();
+    }
+  }
   EXPECT_TRUE(IsShapeSpec("torus:size=1,0.2"));
 }
 
