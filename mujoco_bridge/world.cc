@@ -601,6 +601,28 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
     }
     deformable.PinToFrame(vertices, BodyPose(d, body));
     world->attach_body_[index] = body;
+    // An attachment acts on its body after the step (explicitly): a body
+    // much lighter than the deformable it carries takes the deformable's
+    // inertia a step late and diverges, whatever the time step (measured:
+    // a 15 g pad of E = 5e4 to 1e8 Pa glued to a body on slide joints,
+    // 1 ms: diverged from 40 g down, stable from 45 g; with 2 substeps
+    // from 15 g down, stable from 18 g; at 0.2 ms, 40 g still diverged).
+    // A body welded to the world (a mocap body too) takes no force.
+    const double glued = deformable.model().masses().sum();
+    const double carrier = m->body_subtreemass[body];
+    const double factor = scene.solver.substeps > 1 ? 1.5 : 3.0;
+    if (m->body_weldid[body] != 0 && carrier < factor * glued) {
+      char message[512];
+      std::snprintf(
+          message, sizeof(message),
+          "<attach>: tetbody '%s' (%.3g kg) is glued to body '%s', which with what it "
+          "carries weighs %.3g kg: attachments act on their body after the step, "
+          "which diverges when the body weighs less than about %g times what is glued "
+          "to it; make the body heavier or the deformable lighter%s",
+          spec.tetbody.c_str(), glued, spec.body.c_str(), carrier, factor,
+          scene.solver.substeps > 1 ? "" : ", or use <solver substeps=\"2\"> (1.5 times)");
+      world->load_warnings_.push_back(Where(scene_path, spec.line) + ": " + message);
+    }
   }
 
   // each tree's degrees of freedom (MuJoCo numbers them body by body, bodies

@@ -773,6 +773,62 @@ TEST(WorldLoad, BodyTooFarForDoublePrecisionIsAClearError) {
       << message;
 }
 
+// An attachment acts on its body after the step, so a body much lighter
+// than the deformable glued to it diverges: the load warns, naming the
+// line, both masses and the remedies, exactly when that happens (a 15 g
+// pad on a 30 g body on slide joints diverges within a second; on a 50 g
+// one it falls steadily and the load is silent).
+TEST(WorldLoad, ALightBodyCarryingAHeavyDeformableIsWarnedOf) {
+  TempDir dir;
+  auto scene = [](const char* mass, const char* substeps) {
+    return std::string(
+               "<mujoco><option timestep='0.001' gravity='0 0 -9.81'/><worldbody>\n"
+               "<body name='finger' pos='0 0 0.2'>"
+               "<joint type='slide' axis='1 0 0' damping='0.1'/>"
+               "<joint type='slide' axis='0 0 1' damping='0.1'/>"
+               "<geom type='box' size='0.005 0.03 0.05' mass='") +
+           mass +
+           "' contype='0' conaffinity='0'/></body></worldbody>\n<deformable><solver substeps='" +
+           substeps +
+           "'/>\n<tetbody name='pad' shape='box' size='0.006 0.025 0.025' resolution='2 4 4' "
+           "pos='0.011 0 0.2' density='500' young='1e7' poisson='0.3' damping='2 0'/>\n"
+           "<attach tetbody='pad' body='finger' box='0.004 -0.1 -0.1 0.0051 0.1 0.3'/>\n"
+           "</deformable></mujoco>";
+  };
+  auto diverges = [](World& world) {
+    for (int step = 0; step < 1000; ++step) {
+      world.Step();
+      if (world.metrics().status != StepStatus::kOk) return true;
+    }
+    return false;
+  };
+  const std::unique_ptr<World> light = World::Load(dir.Write("light.xml", scene("0.03", "1")));
+  ASSERT_EQ(light->load_warnings().size(), 1u);
+  const std::string& warning = light->load_warnings()[0];
+  EXPECT_EQ(
+      warning.rfind(dir.path().string() +
+                        "/light.xml:5: <attach>: tetbody 'pad' (0.015 kg) "
+                        "is glued to body 'finger', which with what it carries weighs 0.03 kg",
+                    0),
+      0u)
+      << warning;
+  EXPECT_NE(warning.find("about 3 times"), std::string::npos) << warning;
+  EXPECT_NE(warning.find("substeps"), std::string::npos) << warning;
+  EXPECT_TRUE(diverges(*light));
+  const std::unique_ptr<World> heavy = World::Load(dir.Write("heavy.xml", scene("0.05", "1")));
+  EXPECT_TRUE(heavy->load_warnings().empty());
+  EXPECT_FALSE(diverges(*heavy));
+  // with two substeps the same light body is stable, and not warned of; a
+  // lighter one is both
+  const std::unique_ptr<World> substepped = World::Load(dir.Write("sub.xml", scene("0.03", "2")));
+  EXPECT_TRUE(substepped->load_warnings().empty());
+  EXPECT_FALSE(diverges(*substepped));
+  const std::unique_ptr<World> lighter = World::Load(dir.Write("lighter.xml", scene("0.012", "2")));
+  ASSERT_EQ(lighter->load_warnings().size(), 1u);
+  EXPECT_NE(lighter->load_warnings()[0].find("about 1.5 times"), std::string::npos);
+  EXPECT_TRUE(diverges(*lighter));
+}
+
 // What a mesh's reader or validation noted (here: a second-order mesh read as
 // linear, and its mid-edge nodes dropped) comes with the scene's line, the
 // element and the file; a scene of clean meshes has none.
