@@ -50,6 +50,15 @@ struct Coupling {
   }
 };
 
+// a pinned vertex carried by a rigid tree (RigidPin): v = J q + constant
+struct Slave {
+  int dof = -1;           // first global DoF of the vertex
+  int rigid_offset = -1;  // first global DoF of the tree
+  const Eigen::Matrix<double, 3, Eigen::Dynamic>* jacobian = nullptr;
+  Eigen::Vector3d constant = Eigen::Vector3d::Zero();  // its pin velocity - J q at the start
+  int tree = -1;
+};
+
 // Filtered, preconditioned conjugate gradients on A x = b from x (Baraff
 // and Witkin 1998: the filter zeroes the pinned degrees of freedom, whose
 // values x holds), until the filtered residual r is at most `threshold` or
@@ -212,6 +221,39 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     }
   }
 
+  // the pins that rigid trees carry (RigidPin): pinned as above, their
+  // prescribed velocity now J q + constant
+  std::vector<Slave> slaves;
+  if (rigid) {
+    for (const RigidPin& pin : rigid->pins) {
+      const RigidPoint& point = rigid->points[static_cast<size_t>(pin.point)];
+      DeformableBody& body = *bodies[pin.body];
+      Slave& slave = slaves.emplace_back();
+      slave.dof = offset[pin.body] + 3 * body.pinned_vertices()[static_cast<size_t>(pin.pin)];
+      slave.rigid_offset = tree_offset[point.tree];
+      slave.jacobian = &point.jacobian;
+      slave.tree = point.tree;
+      slave.constant = body.PinVelocity(static_cast<size_t>(pin.pin), dt) -
+                       point.jacobian * v.segment(slave.rigid_offset, point.jacobian.cols());
+    }
+  }
+  // x on the carried pins' DoFs from x's trees: J q, plus the constants
+  auto carry = [&](Eigen::VectorXd& x, bool with_constant) {
+    for (const Slave& slave : slaves) {
+      const auto& J = *slave.jacobian;
+      x.segment<3>(slave.dof) = J * x.segment(slave.rigid_offset, J.cols());
+      if (with_constant) x.segment<3>(slave.dof) += slave.constant;
+    }
+  };
+  // T^T y: the carried pins' rows of y onto their trees' (and zeroed)
+  auto gather = [&](Eigen::VectorXd& y) {
+    for (const Slave& slave : slaves) {
+      const auto& J = *slave.jacobian;
+      y.segment(slave.rigid_offset, J.cols()) += J.transpose() * y.segment<3>(slave.dof);
+      y.segment<3>(slave.dof).setZero();
+    }
+  };
+
   // contacts: their linearizations and couplings
   std::vector<Coupling> couplings(contacts.size());
   std::vector<ContactLinearization> linear(contacts.size());
@@ -242,7 +284,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   }
 
   // y = A x
-  auto multiply = [&](const Eigen::VectorXd& x, Eigen::VectorXd& y) {
+  auto multiply_full = [&](const Eigen::VectorXd& x, Eigen::VectorXd& y) {
     for_each_body(
         [&](int k) { bodies[k]->MultiplySystem(x.data() + offset[k], y.data() + offset[k]); });
     for (int t = 0; t < num_trees; ++t) {
@@ -253,6 +295,18 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     for (const Coupling& coupling : couplings) {
       if (coupling.active) coupling.AddJt(coupling.gain * coupling.Jv(x), y);
     }
+  };
+  // y = T^T A T x: the system the solve sees (A itself without carried pins)
+  Eigen::VectorXd carried(slaves.empty() ? 0 : n);
+  auto multiply = [&](const Eigen::VectorXd& x, Eigen::VectorXd& y) {
+    if (slaves.empty()) {
+      multiply_full(x, y);
+      return;
+    }
+    carried = x;
+    carry(carried, /*with_constant=*/false);
+    multiply_full(carried, y);
+    gather(y);
   };
   auto filter = [&](Eigen::VectorXd& x) {
     for (int i = 0; i < n; ++i) {
@@ -279,6 +333,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   // Rounds of solves, each with the contacts that push (coupled_step.h);
   // the first guess: those that push at the warm start.
   Eigen::VectorXd v_new = v + delta;
+  carry(v_new, /*with_constant=*/true);  // (the same: J q + constant = the pin velocity)
   for (size_t c = 0; c < contacts.size(); ++c) {
     couplings[c].active = integrated_force(c, v_new).dot(contacts[c].direction) >= 0.0;
   }
@@ -329,6 +384,13 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
           blocks[static_cast<size_t>(coupling.dof_b[i] / 3)] += weight * coupling.gain;
         }
       }
+    }
+    // a carried pin's block on its tree's (T^T A T's diagonal, but for the
+    // vertex's coupling to the rest of its body)
+    for (const Slave& slave : slaves) {
+      const auto& J = *slave.jacobian;
+      tree_diagonal[static_cast<size_t>(slave.tree)] +=
+          J.transpose() * blocks[static_cast<size_t>(slave.dof / 3)] * J;
     }
     // preconditioned CG on A v+ = b, warm-started from v plus each body's
     // last change, then from the last round's solution
@@ -412,8 +474,20 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     const double reference =
         std::max(impulse.norm(), 1e-6 * momentum.head(offset[num_bodies]).norm());
     const double threshold = (precise ? settings.cg_tolerance : kSettlingTolerance) * reference;
-    report.iterations += ConjugateGradients(multiply, precondition, filter, b, threshold,
-                                            settings.cg_max_iterations, v_new, Av_new, r);
+    if (slaves.empty()) {
+      report.iterations += ConjugateGradients(multiply, precondition, filter, b, threshold,
+                                              settings.cg_max_iterations, v_new, Av_new, r);
+    } else {
+      // T^T (b - A c), c the constants on the carried pins' DoFs
+      Eigen::VectorXd constants = Eigen::VectorXd::Zero(n), reduced(n);
+      for (const Slave& slave : slaves) constants.segment<3>(slave.dof) = slave.constant;
+      multiply_full(constants, reduced);
+      reduced = b - reduced;
+      gather(reduced);
+      report.iterations += ConjugateGradients(multiply, precondition, filter, reduced, threshold,
+                                              settings.cg_max_iterations, v_new, Av_new, r);
+      carry(v_new, /*with_constant=*/true);
+    }
     report.residual = reference > 0.0 ? r.norm() / reference : 0.0;
 
     // the forces actually integrated (none for a released contact), and
@@ -447,7 +521,9 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     RigidTree& tree = rigid->trees[t];
     tree.velocity_end = v_new.segment(tree_offset[t], tree.velocity.size());
   }
-  // the pin residuals
+
+  // the pin residuals (with carried pins, of A itself: Av_new is T^T A T's)
+  if (!slaves.empty()) multiply_full(v_new, Av_new);
   const Eigen::VectorXd residual = Av_new - b;
   for (int k = 0; k < num_bodies; ++k) {
     const int size = offset[k + 1] - offset[k];

@@ -75,9 +75,26 @@ struct RigidPoint {
   // tree's generalized velocities
   Eigen::Matrix<double, 3, Eigen::Dynamic> jacobian;
 };
+// A pinned vertex carried by a rigid body solved with the step (an
+// attachment): its velocity at the step's end is J q+ + (p - J q), with J
+// its point's Jacobian, q and q+ the tree's velocities at the step's start
+// and end, and p its pin velocity (DeformableBody::PinVelocity), so that it
+// moves with the body as the pin says and the body takes the deformable's
+// inertia and stiffness within the step. (Its force reaching the body only
+// after the step, a body lighter than about three times the deformable
+// diverged, at any time step.) The system is solved for the free vertices
+// and the trees: with v = T y + c (T: the identity but on these vertices,
+// which it sets to J y's tree part; c: p - J q on them), T^T A T y =
+// T^T (b - A c).
+struct RigidPin {
+  int body = -1;   // the deformable
+  int pin = -1;    // its pinned vertex pinned_vertices()[pin], a kinematic pin
+  int point = -1;  // the vertex's point on the rigid body, in RigidSystem::points
+};
 struct RigidSystem {
   std::vector<RigidTree> trees;
-  std::vector<RigidPoint> points;  // ContactPoint::rigid_point indexes this
+  std::vector<RigidPoint> points;  // ContactPoint::rigid_point and RigidPin::point index this
+  std::vector<RigidPin> pins;
 };
 
 // Solves per step at most: after the last, contacts are kept as they are.
@@ -90,7 +107,7 @@ inline constexpr double kSettlingTolerance = 1e-3;
 inline constexpr int kMaxEliminatedRigidDofs = 120;
 
 // `rigid` (may be null) holds the trees and points of contacts with
-// rigid_point >= 0.
+// rigid_point >= 0, and the pins its trees carry.
 CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
                               std::span<ContactPoint> contacts,
                               const ContactSettings& contact_settings, const StepSettings& settings,

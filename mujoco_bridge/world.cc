@@ -601,26 +601,28 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
     }
     deformable.PinToFrame(vertices, BodyPose(d, body));
     world->attach_body_[index] = body;
-    // An attachment acts on its body after the step (explicitly): a body
-    // much lighter than the deformable it carries takes the deformable's
-    // inertia a step late and diverges, whatever the time step (measured:
-    // a 15 g pad of E = 5e4 to 1e8 Pa glued to a body on slide joints,
-    // 1 ms: diverged from 40 g down, stable from 45 g; with 2 substeps
-    // from 15 g down, stable from 18 g; at 0.2 ms, 40 g still diverged).
-    // A body welded to the world (a mocap body too) takes no force.
+    // With <solver rigid="explicit">, an attachment acts on its body after
+    // the step: a body much lighter than the deformable it carries takes
+    // the deformable's inertia a step late and diverges, whatever the time
+    // step (measured: a 15 g pad of E = 5e4 to 1e8 Pa glued to a body on
+    // slide joints, 1 ms: diverged from 40 g down, stable from 45 g; with 2
+    // substeps from 15 g down, stable from 18 g; at 0.2 ms, 40 g still
+    // diverged). Implicit (the default), the body's tree carries the pins
+    // within the step (RigidPin). A body welded to the world (a mocap body
+    // too) takes no force.
     const double glued = deformable.model().masses().sum();
     const double carrier = m->body_subtreemass[body];
     const double factor = scene.solver.substeps > 1 ? 1.5 : 3.0;
-    if (m->body_weldid[body] != 0 && carrier < factor * glued) {
+    if (!scene.solver.implicit_rigid && m->body_weldid[body] != 0 && carrier < factor * glued) {
       char message[512];
-      std::snprintf(
-          message, sizeof(message),
-          "<attach>: tetbody '%s' (%.3g kg) is glued to body '%s', which with what it "
-          "carries weighs %.3g kg: attachments act on their body after the step, "
-          "which diverges when the body weighs less than about %g times what is glued "
-          "to it; make the body heavier or the deformable lighter%s",
-          spec.tetbody.c_str(), glued, spec.body.c_str(), carrier, factor,
-          scene.solver.substeps > 1 ? "" : ", or use <solver substeps=\"2\"> (1.5 times)");
+      std::snprintf(message, sizeof(message),
+                    "<attach>: tetbody '%s' (%.3g kg) is glued to body '%s', which with what it "
+                    "carries weighs %.3g kg: with rigid=\"explicit\", attachments act on their "
+                    "body after the step, which diverges when the body weighs less than about "
+                    "%g times what is glued to it; leave <solver rigid> implicit (the default), "
+                    "or make the body heavier or the deformable lighter%s",
+                    spec.tetbody.c_str(), glued, spec.body.c_str(), carrier, factor,
+                    scene.solver.substeps > 1 ? "" : ", or use substeps=\"2\" (1.5 times)");
       world->load_warnings_.push_back(Where(scene_path, spec.line) + ": " + message);
     }
   }
@@ -824,16 +826,14 @@ void World::BuildRigidSystem(double dt) {
   rigid_roots_.clear();
   rigid_.trees.clear();
   rigid_.points.clear();
+  rigid_.pins.clear();
   if (!scene_.solver.implicit_rigid) return;
-  size_t point = 0;
-  for (size_t c = 0; c < contacts_.size(); ++c) {
-    const int body = contact_rigid_body_[c];
-    if (body < 0) continue;
-    const Eigen::Vector3d& p_W = reaction_points_[point++];
+  // the point p_W of `body` (whose tree has degrees of freedom) in the
+  // system, its tree added first if it is not yet
+  auto add_point = [&](int body, const Eigen::Vector3d& p_W) -> RigidPoint& {
     const int root = m->body_rootid[body];
     const int first = tree_first_dof_[root];
     const int size = tree_num_dofs_[root];
-    if (size == 0) continue;  // welded to the world, or moved by mocap: its velocity is known
     FindOtherForces();
     if (tree_slot_[root] < 0) {
       tree_slot_[root] = static_cast<int>(rigid_.trees.size());
@@ -857,11 +857,38 @@ void World::BuildRigidSystem(double dt) {
     rigid_point.tree = tree_slot_[root];
     rigid_point.jacobian =
         Eigen::Map<const MjJacobian>(jacobian_.data(), 3, m->nv).middleCols(first, size);
+    return rigid_point;
+  };
+  size_t point = 0;
+  for (size_t c = 0; c < contacts_.size(); ++c) {
+    const int body = contact_rigid_body_[c];
+    if (body < 0) continue;
+    const Eigen::Vector3d& p_W = reaction_points_[point++];
+    const int root = m->body_rootid[body];
+    // (welded to the world, or moved by mocap: its velocity is known)
+    if (tree_num_dofs_[root] == 0) continue;
+    const RigidPoint& rigid_point = add_point(body, p_W);
     contacts_[c].rigid_point = static_cast<int>(rigid_.points.size()) - 1;
     if (tree_carried_[root]) {  // the point's velocity from the tree's carried one
       const Eigen::Vector3d v =
           rigid_point.jacobian * rigid_.trees[static_cast<size_t>(rigid_point.tree)].velocity;
       (contacts_[c].body_a < 0 ? contacts_[c].velocity_a : contacts_[c].velocity_b) = v;
+    }
+  }
+  // attachments: their pins carried by their body's tree (RigidPin), at
+  // the reaction points that follow the contacts' (KeepReactionPoints)
+  for (size_t i = 0; i < bodies_.size(); ++i) {
+    const int body = attach_body_[i];
+    if (body < 0) continue;
+    const size_t num_pins = bodies_[i]->pinned_vertices().size();
+    if (tree_num_dofs_[m->body_rootid[body]] == 0) {
+      point += num_pins;
+      continue;
+    }
+    for (size_t k = 0; k < num_pins; ++k) {
+      add_point(body, reaction_points_[point++]);
+      rigid_.pins.push_back(
+          {static_cast<int>(i), static_cast<int>(k), static_cast<int>(rigid_.points.size()) - 1});
     }
   }
 }

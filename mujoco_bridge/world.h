@@ -209,7 +209,8 @@ class World {
   // Before a step: where the reactions of the contacts with MuJoCo bodies,
   // then of the pins, will act (reaction_points_).
   void KeepReactionPoints();
-  // The rigid system of this substep (dt), its trees at substep_velocity_.
+  // The rigid system of this substep (dt), its trees at substep_velocity_:
+  // the trees in contact and those carrying attachments' pins.
   void BuildRigidSystem(double dt);
   void FindOtherForces();                // other_forces_, once a step
   void AdvanceUnsolvedTrees(double dt);  // (substeps)
@@ -248,7 +249,7 @@ class World {
   std::vector<int> contact_rigid_body_;  // per contact: MuJoCo body on the rigid side, or -1
   std::vector<Eigen::Vector3d> reaction_points_;  // see KeepReactionPoints
   // MuJoCo's trees (by root body): first DoF and count; this substep's
-  // trees in contact (BuildRigidSystem) and each root's slot among them
+  // trees in the rigid system (BuildRigidSystem) and each root's slot among them
   std::vector<int> tree_first_dof_;
   std::vector<int> tree_num_dofs_;
   std::vector<int> tree_slot_;
