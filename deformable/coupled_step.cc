@@ -63,15 +63,16 @@ struct Slave {
 // and Witkin 1998: the filter zeroes the pinned degrees of freedom, whose
 // values x holds), until the filtered residual r is at most `threshold` or
 // after max_iterations. Ax = A x is tracked through the iterations, so that
-// the final residual needs no extra product. Returns the iterations.
+// the final residual needs no extra product; with Ax_given, Ax holds it
+// already at the start. Returns the iterations.
 template <typename Multiply, typename Precondition, typename Filter>
 int ConjugateGradients(const Multiply& multiply, const Precondition& precondition,
                        const Filter& filter, const Eigen::VectorXd& b, double threshold,
                        int max_iterations, Eigen::VectorXd& x, Eigen::VectorXd& Ax,
-                       Eigen::VectorXd& r) {
+                       Eigen::VectorXd& r, bool Ax_given = false) {
   const Eigen::Index n = b.size();
   Eigen::VectorXd z(n), p(n), q(n);
-  multiply(x, Ax);
+  if (!Ax_given) multiply(x, Ax);
   r = b - Ax;
   filter(r);
   precondition(r, z);
@@ -249,8 +250,11 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   auto gather = [&](Eigen::VectorXd& y) {
     for (const Slave& slave : slaves) {
       const auto& J = *slave.jacobian;
-      y.segment(slave.rigid_offset, J.cols()) += J.transpose() * y.segment<3>(slave.dof);
+      const Eigen::Vector3d row = y.segment<3>(slave.dof);
       y.segment<3>(slave.dof).setZero();
+      // (noalias: else Eigen takes y on both sides for aliasing and puts
+      // the product in a temporary on the heap, each pin and product)
+      y.segment(slave.rigid_offset, J.cols()).noalias() += J.transpose() * row;
     }
   };
 
@@ -478,14 +482,15 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
       report.iterations += ConjugateGradients(multiply, precondition, filter, b, threshold,
                                               settings.cg_max_iterations, v_new, Av_new, r);
     } else {
-      // T^T (b - A c), c the constants on the carried pins' DoFs
-      Eigen::VectorXd constants = Eigen::VectorXd::Zero(n), reduced(n);
-      for (const Slave& slave : slaves) constants.segment<3>(slave.dof) = slave.constant;
-      multiply_full(constants, reduced);
-      reduced = b - reduced;
+      // T^T b, and at the start T^T A (T x + c) (v_new: x carried, with
+      // the constants c), so that the residual is T^T (b - A c) - T^T A T x
+      Eigen::VectorXd reduced = b;
       gather(reduced);
-      report.iterations += ConjugateGradients(multiply, precondition, filter, reduced, threshold,
-                                              settings.cg_max_iterations, v_new, Av_new, r);
+      multiply_full(v_new, Av_new);
+      gather(Av_new);
+      report.iterations +=
+          ConjugateGradients(multiply, precondition, filter, reduced, threshold,
+                             settings.cg_max_iterations, v_new, Av_new, r, /*Ax_given=*/true);
       carry(v_new, /*with_constant=*/true);
     }
     report.residual = reference > 0.0 ? r.norm() / reference : 0.0;
