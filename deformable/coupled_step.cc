@@ -527,7 +527,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     tree.velocity_end = v_new.segment(tree_offset[t], tree.velocity.size());
   }
 
-  // the pin residuals (with carried pins, of A itself: Av_new is T^T A T's)
+  // the pin residuals (with carried pins, of A itself: Av_new is the reduced system's)
   if (!slaves.empty()) multiply_full(v_new, Av_new);
   const Eigen::VectorXd residual = Av_new - b;
   for (int k = 0; k < num_bodies; ++k) {

@@ -645,8 +645,10 @@ TEST(WorldStep, SameInputAndThreadCountGiveBitIdenticalStates) {
     std::vector<double> qpos, qvel;
     int colliding = 0;
   };
+  // (the gripper: attachments carried by their tree, RigidPin)
   for (const auto& [scene, steps] : {std::pair<std::string, int>{"paper/cubes.xml", 30},
-                                     std::pair<std::string, int>{"scenes/cube_on_box.xml", 300}}) {
+                                     std::pair<std::string, int>{"scenes/cube_on_box.xml", 300},
+                                     std::pair<std::string, int>{"scenes/gripper.xml", 100}}) {
     SCOPED_TRACE(scene);
     // (copied in: clang before 16 cannot capture a structured binding)
     auto run = [&, scene = scene, steps = steps](int threads) {
