@@ -478,21 +478,21 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     const double reference =
         std::max(impulse.norm(), 1e-6 * momentum.head(offset[num_bodies]).norm());
     const double threshold = (precise ? settings.cg_tolerance : kSettlingTolerance) * reference;
-    if (slaves.empty()) {
-      report.iterations += ConjugateGradients(multiply, precondition, filter, b, threshold,
-                                              settings.cg_max_iterations, v_new, Av_new, r);
-    } else {
-      // T^T b, and at the start T^T A (T x + c) (v_new: x carried, with
-      // the constants c), so that the residual is T^T (b - A c) - T^T A T x
-      Eigen::VectorXd reduced = b;
+    // with carried pins: T^T b, and at the start T^T A (T x + c) (v_new: x
+    // carried, with the constants c), so that the residual is
+    // T^T (b - A c) - T^T A T x
+    Eigen::VectorXd reduced;
+    if (!slaves.empty()) {
+      reduced = b;
       gather(reduced);
       multiply_full(v_new, Av_new);
       gather(Av_new);
-      report.iterations +=
-          ConjugateGradients(multiply, precondition, filter, reduced, threshold,
-                             settings.cg_max_iterations, v_new, Av_new, r, /*Ax_given=*/true);
-      carry(v_new, /*with_constant=*/true);
     }
+    report.iterations +=
+        ConjugateGradients(multiply, precondition, filter, slaves.empty() ? b : reduced, threshold,
+                           settings.cg_max_iterations, v_new, Av_new, r,
+                           /*Ax_given=*/!slaves.empty());
+    carry(v_new, /*with_constant=*/true);  // (nothing without carried pins)
     report.residual = reference > 0.0 ? r.norm() / reference : 0.0;
 
     // the forces actually integrated (none for a released contact), and

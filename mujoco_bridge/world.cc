@@ -613,7 +613,8 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
     const double glued = deformable.model().masses().sum();
     const double carrier = m->body_subtreemass[body];
     const double factor = scene.solver.substeps > 1 ? 1.5 : 3.0;
-    if (!scene.solver.implicit_rigid && m->body_weldid[body] != 0 && carrier < factor * glued) {
+    if (!scene.solver.implicit_rigid && !world->RigidBodyIsStatic(body) &&
+        carrier < factor * glued) {
       char message[512];
       std::snprintf(message, sizeof(message),
                     "<attach>: tetbody '%s' (%.3g kg) is glued to body '%s', which with what it "
