@@ -95,7 +95,8 @@ void RunRollout(const RunOptions& options) {
   if (!steps_csv || !bodies_csv) throw Error(options.out + ": cannot write the output files");
   steps_csv << "step,time,colliding_points,max_depth,mean_depth,kinetic_deformable,kinetic_rigid,"
                "px,py,pz,direction_change_max_deg,neighbour_angle_mean_deg,fallback_points,"
-               "unresolved_points,solver_iterations,contact_rounds,released_contacts,wall_ms\n";
+               "unresolved_points,solver_iterations,contact_rounds,released_contacts,"
+               "stuck_contacts,wall_ms\n";
   bodies_csv << "frame,time,body,x,y,z,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz\n";
   // (a rate so low that not even one frame falls in the run: one frame, the
   // first; the count of steps between frames would not fit in a long)
@@ -147,14 +148,15 @@ void RunRollout(const RunOptions& options) {
     max_depth = std::max(max_depth, metrics.max_depth);
     Eigen::Vector3d p = world->LinearMomentum();
     char line[512];
-    std::snprintf(line, sizeof(line),
-                  "%ld,%.9g,%d,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.6g,%.6g,%d,%d,%d,%d,%d,%.6g\n",
-                  step + 1, world->time(), metrics.colliding_points, metrics.max_depth,
-                  metrics.mean_depth, world->DeformableKineticEnergy(), world->RigidKineticEnergy(),
-                  p.x(), p.y(), p.z(), rollout_metrics.step_max_direction_change(),
-                  rollout_metrics.step_mean_neighbour_angle(), metrics.fallback_points,
-                  metrics.unresolved_points, metrics.solver_iterations, metrics.contact_rounds,
-                  metrics.released_contacts, metrics.total_ms);
+    std::snprintf(
+        line, sizeof(line),
+        "%ld,%.9g,%d,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.6g,%.6g,%d,%d,%d,%d,%d,%d,%.6g\n",
+        step + 1, world->time(), metrics.colliding_points, metrics.max_depth, metrics.mean_depth,
+        world->DeformableKineticEnergy(), world->RigidKineticEnergy(), p.x(), p.y(), p.z(),
+        rollout_metrics.step_max_direction_change(), rollout_metrics.step_mean_neighbour_angle(),
+        metrics.fallback_points, metrics.unresolved_points, metrics.solver_iterations,
+        metrics.contact_rounds, metrics.released_contacts, metrics.stuck_contacts,
+        metrics.total_ms);
     steps_csv << line;
     if (step % frame_every == 0) {
       for (int b = 1; b < world->num_rigid_bodies(); ++b) {

@@ -9,8 +9,8 @@ double DefaultContactPressureStiffness(const FemModel& model) {
 }
 
 ContactLinearization LinearizeContact(std::span<DeformableBody* const> bodies,
-                                      const ContactPoint& contact,
-                                      const ContactSettings& settings) {
+                                      const ContactPoint& contact, const ContactSettings& settings,
+                                      FrictionLaw law, const Eigen::Vector3d& slide) {
   const Eigen::Vector3d& r = contact.direction;
   // velocities and masses of both sides at the point
   ContactLinearization out;
@@ -47,13 +47,30 @@ ContactLinearization LinearizeContact(std::span<DeformableBody* const> bodies,
   const bool approaching = v_n < 0.0;
   const double f_n = std::max(0.0, k * contact.depth - (approaching ? c * v_n : 0.0));
   const Eigen::Vector3d v_t = out.relative_velocity - v_n * r;
+  const Eigen::Matrix3d rr = r * r.transpose();
+  const Eigen::Matrix3d tangential = Eigen::Matrix3d::Identity() - rr;
+  out.stiffness = k * rr;
+  out.damping = (approaching ? c : 0.0) * rr;
+  switch (law) {
+    case FrictionLaw::kSticking: {
+      const double k_t = settings.stick_stiffness * k;
+      const double c_t = 2.0 * contact.damping_ratio * std::sqrt(k_t * std::max(mass, 0.0));
+      out.force = f_n * r - k_t * (tangential * contact.stick) - c_t * v_t;
+      out.stiffness += k_t * tangential;
+      out.damping += c_t * tangential;
+      return out;
+    }
+    case FrictionLaw::kSliding:
+      out.force = f_n * r + slide;
+      return out;
+    case FrictionLaw::kSmooth:
+      break;
+  }
   const double slip =
       std::sqrt(v_t.squaredNorm() + settings.slip_velocity * settings.slip_velocity);
   const double friction_gain = contact.friction * f_n / slip;
   out.force = f_n * r - friction_gain * v_t;
-  const Eigen::Matrix3d rr = r * r.transpose();
-  out.stiffness = k * rr;
-  out.damping = (approaching ? c : 0.0) * rr + friction_gain * (Eigen::Matrix3d::Identity() - rr);
+  out.damping += friction_gain * tangential;
   return out;
 }
 

@@ -5,6 +5,9 @@
 // direction r (out of B) gets
 //   normal    f_n = k d + c max(0, -v_n),  v_n = (v_A - v_B) . r,  c = 2 zeta sqrt(k m)
 //   friction  f_t = -mu f_n v_t / sqrt(|v_t|^2 + v_s^2)   (smooth Coulomb, |f_t| < mu f_n)
+//             or, with static friction (ContactSettings::stick, below),
+//             sticking  f_t = -k_t s - c_t v_t
+//             sliding   f_t = mu f_n t    (t: a unit tangent, the way the sticking force pulled)
 //   force on A = f_n r + f_t,  on B the opposite
 // where v_B is B's velocity at the point (the barycentric velocity of B's
 // containing tetrahedron, or a rigid body's point velocity) and m the
@@ -12,8 +15,26 @@
 // the containing tetrahedron's vertices by barycentric weights w_i.
 // Derivatives for the implicit step (positive semi-definite, with respect to
 // the relative position and velocity; coupled_step.h integrates them):
-//   stiffness  -df/dx = k r r^T
-//   damping    -df/dv = c r r^T [approaching] + mu f_n / sqrt(|v_t|^2 + v_s^2) (I - r r^T)
+//   stiffness  -df/dx = k r r^T  [+ k_t (I - r r^T) sticking]
+//   damping    -df/dv = c r r^T [approaching]
+//                       + mu f_n / sqrt(|v_t|^2 + v_s^2) (I - r r^T)  [smooth]
+//                       + c_t (I - r r^T)                            [sticking]
+//
+// Static friction: the smooth law alone holds a loaded contact only while
+// it slips, at v_s q / sqrt(1 - q^2) for a load q mu f_n, so a body that
+// friction should hold creeps (0.58 mm/s at half the friction angle). With
+// ContactSettings::stick, friction is elastoplastic instead (a spring and a
+// slider, as in the friction models of Dahl or Kikuuwe et al. 2006, and
+// return mapping in plasticity): a sticking contact is a tangential spring,
+// s the elastic tangential displacement of A against B since it stuck,
+// integrated with the step (s+ = (I - r r^T)(s + dt v_t+)), k_t =
+// stick_stiffness k and c_t = 2 zeta sqrt(k_t m); so a held body's
+// relative velocity goes to zero. A contact whose sticking force would
+// leave the cone |f_t| <= mu f_n slides instead: Coulomb's mu f_n, along the
+// sticking force it replaces (the trial force projected onto the cone),
+// constant through the step; s is then where the spring holds that force.
+// coupled_step.h decides which contacts stick; the caller keeps s from step
+// to step (ContactPoint::stick).
 
 #include <Eigen/Core>
 #include <span>
@@ -48,12 +69,20 @@ struct ContactPoint {
   double stiffness = 0.0;                                // k, N/m
   double friction = 0.0;                                 // mu
   double damping_ratio = 0.5;  // zeta: fraction of critical damping on approach
+  // static friction (ContactSettings::stick): the friction spring's
+  // tangential displacement s (m, world frame, in the plane normal to
+  // `direction`): in, the contact's s at the end of the step before (zero
+  // for a new contact); out, at the end of this one
+  Eigen::Vector3d stick = Eigen::Vector3d::Zero();
   // result: the force on A (newtons, world frame); B receives -force
   Eigen::Vector3d force = Eigen::Vector3d::Zero();
+  bool stuck = false;  // result: friction held the contact (it stuck) this step
 };
 
 struct ContactSettings {
-  double slip_velocity = 1e-3;  // v_s, m/s: friction is smooth below this slip
+  double slip_velocity = 1e-3;   // v_s, m/s: friction is smooth below this slip
+  bool stick = true;             // static friction: a contact inside the cone sticks
+  double stick_stiffness = 1.0;  // k_t / k: the sticking spring's stiffness, of the normal's
 };
 
 // A contact's force at the current state and its derivatives (see above),
@@ -67,8 +96,14 @@ struct ContactLinearization {
   Eigen::Vector3d relative_velocity;  // v_A - v_B
   Eigen::Vector3d rigid_velocity;     // the part of it from rigid/static sides
 };
+// Which friction law a contact follows in a step (above): smooth, or with
+// static friction sticking or sliding.
+enum class FrictionLaw { kSmooth, kSticking, kSliding };
+// (sliding: `slide` is the friction force on A, mu f_n t)
 ContactLinearization LinearizeContact(std::span<DeformableBody* const> bodies,
-                                      const ContactPoint& contact, const ContactSettings& settings);
+                                      const ContactPoint& contact, const ContactSettings& settings,
+                                      FrictionLaw law = FrictionLaw::kSmooth,
+                                      const Eigen::Vector3d& slide = Eigen::Vector3d::Zero());
 
 // The default contact stiffness per unit area and depth (Pa/m) of a body:
 // kappa = 10 E / L with L = (volume)^(1/3). A vertex standing for area a gets

@@ -132,6 +132,13 @@ void MultiplyVerticesToRigid(const std::vector<const Coupling*>& couplings,
   }
 }
 
+// whether a contact's force on A lies in its friction cone, |f_t| <= mu f_n
+bool InsideFrictionCone(const Eigen::Vector3d& force, const ContactPoint& contact) {
+  const double normal = force.dot(contact.direction);
+  const Eigen::Vector3d tangential = force - normal * contact.direction;
+  return tangential.norm() <= contact.friction * std::max(0.0, normal);
+}
+
 }  // namespace
 
 CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
@@ -262,9 +269,41 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   std::vector<Coupling> couplings(contacts.size());
   std::vector<ContactLinearization> linear(contacts.size());
   std::vector<Eigen::Vector3d> contact_rhs(contacts.size());
+  // each contact's friction law in this step (contact.h): with static
+  // friction, sticking first, sliding along the sticking force it would
+  // leave its cone with (slide[c]), sticking again if it then slid back,
+  // sliding again if that leaves the cone (at most three switches a step,
+  // the last to sliding, which stays in the cone)
+  std::vector<FrictionLaw> law(contacts.size(), FrictionLaw::kSmooth);
+  std::vector<Eigen::Vector3d> slide(contacts.size(), Eigen::Vector3d::Zero());
+  std::vector<char> switches(contacts.size(), 0);
+  auto linearize = [&](size_t c) {
+    linear[c] = LinearizeContact(bodies, contacts[c], contact_settings, law[c], slide[c]);
+    Coupling& coupling = couplings[c];
+    coupling.gain = dt * dt * linear[c].stiffness + dt * linear[c].damping;
+    // dt J^T (f - dt K c + D J v)
+    contact_rhs[c] = dt * (linear[c].force - dt * linear[c].stiffness * linear[c].rigid_velocity +
+                           linear[c].damping * coupling.Jv_start);
+  };
+  // (force: the sticking force at a trial solution, outside the cone)
+  // (to sliding, Coulomb's force along the tangential part of `along` at
+  // the normal force of `force`: the sticking force at a trial solution)
+  auto slide_along = [&](size_t c, const Eigen::Vector3d& along, const Eigen::Vector3d& force) {
+    const Eigen::Vector3d& normal = contacts[c].direction;
+    const Eigen::Vector3d tangential = along - along.dot(normal) * normal;
+    const double length = tangential.norm();
+    const double limit = contacts[c].friction * std::max(0.0, force.dot(normal));
+    slide[c] = length > 0.0 ? (limit / length * tangential).eval() : Eigen::Vector3d::Zero();
+    law[c] = FrictionLaw::kSliding;
+    linearize(c);
+  };
+  // (to sticking again, from its spring at the step's start)
+  auto stick_again = [&](size_t c) {
+    law[c] = FrictionLaw::kSticking;
+    linearize(c);
+  };
   for (size_t c = 0; c < contacts.size(); ++c) {
     const ContactPoint& contact = contacts[c];
-    linear[c] = LinearizeContact(bodies, contact, contact_settings);
     Coupling& coupling = couplings[c];
     if (contact.body_a >= 0) coupling.dof_a = offset[contact.body_a] + 3 * contact.vertex_a;
     if (contact.body_b >= 0) {
@@ -280,11 +319,11 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
       coupling.rigid_jacobian = &point.jacobian;
       coupling.rigid_sign = contact.body_a < 0 ? 1.0 : -1.0;
     }
-    coupling.gain = dt * dt * linear[c].stiffness + dt * linear[c].damping;
     coupling.Jv_start = coupling.Jv(v);
-    // dt J^T (f - dt K c + D J v)
-    contact_rhs[c] = dt * (linear[c].force - dt * linear[c].stiffness * linear[c].rigid_velocity +
-                           linear[c].damping * coupling.Jv_start);
+    if (contact_settings.stick && contact.friction > 0.0 && contact.stiffness > 0.0) {
+      law[c] = FrictionLaw::kSticking;
+    }
+    linearize(c);
   }
 
   // y = A x
@@ -339,6 +378,12 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   Eigen::VectorXd v_new = v + delta;
   carry(v_new, /*with_constant=*/true);  // (the same: J q + constant = the pin velocity)
   for (size_t c = 0; c < contacts.size(); ++c) {
+    if (law[c] == FrictionLaw::kSticking) {
+      const Eigen::Vector3d force = integrated_force(c, v_new);
+      // (sliding: along the sticking force at the step's start velocities,
+      // which a slipping contact's slip sets, not the warm start's)
+      if (!InsideFrictionCone(force, contacts[c])) slide_along(c, integrated_force(c, v), force);
+    }
     couplings[c].active = integrated_force(c, v_new).dot(contacts[c].direction) >= 0.0;
   }
   // the rigid trees eliminated in the preconditioner (kMaxEliminatedRigidDofs)
@@ -512,6 +557,31 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
           coupling.active = true;
           coupling.taken_back = true;
           changed = true;
+        } else if (coupling.active) {
+          if (law[c] == FrictionLaw::kSticking && switches[c] < 3 &&
+              !InsideFrictionCone(force, contacts[c])) {
+            slide_along(c, force, force);
+            ++switches[c];
+            changed = true;
+          } else if (law[c] == FrictionLaw::kSliding && switches[c] < 2 &&
+                     (couplings[c].Jv(v_new) + linear[c].rigid_velocity).dot(slide[c]) > 0.0) {
+            // (Coulomb's force turned A's slip around: it stops, so it sticks)
+            stick_again(c);
+            ++switches[c];
+            changed = true;
+          } else if (law[c] == FrictionLaw::kSliding) {
+            // (Coulomb's force at the normal force this solution integrates:
+            // at a stiff contact and a long step, the step's start's can be
+            // far larger, and friction from it would throw the bodies)
+            const Eigen::Vector3d& normal = contacts[c].direction;
+            const double limit = contacts[c].friction * std::max(0.0, force.dot(normal));
+            const double length = slide[c].norm();
+            if (length > 0.0 && std::abs(length - limit) > kSlidingForceTolerance * length) {
+              slide[c] *= limit / length;
+              linearize(c);
+              changed = true;
+            }
+          }
         }
       }
       contacts[c].force = coupling.active ? force : Eigen::Vector3d::Zero();
@@ -525,6 +595,31 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   for (int t = 0; t < num_trees; ++t) {
     RigidTree& tree = rigid->trees[t];
     tree.velocity_end = v_new.segment(tree_offset[t], tree.velocity.size());
+  }
+
+  // the friction springs at the end of the step (contact.h): a sticking
+  // contact's integrated, a sliding one's where it holds the sliding force;
+  // within the cone, and none for a released contact
+  for (size_t c = 0; c < contacts.size(); ++c) {
+    ContactPoint& contact = contacts[c];
+    contact.stuck = couplings[c].active && law[c] == FrictionLaw::kSticking;
+    report.stuck_contacts += contact.stuck;
+    if (!couplings[c].active || law[c] == FrictionLaw::kSmooth) {
+      contact.stick.setZero();
+      continue;
+    }
+    const Eigen::Vector3d& normal = contact.direction;
+    const double k_t = contact_settings.stick_stiffness * contact.stiffness;
+    Eigen::Vector3d s;
+    if (contact.stuck) {
+      s = contact.stick + dt * (couplings[c].Jv(v_new) + linear[c].rigid_velocity);
+    } else {
+      s = -contact.force / k_t;
+    }
+    s -= s.dot(normal) * normal;
+    const double limit = contact.friction * std::max(0.0, contact.force.dot(normal)) / k_t;
+    if (s.norm() > limit) s *= limit / s.norm();
+    contact.stick = s;
   }
 
   // the pin residuals (with carried pins, of A itself: Av_new is the reduced system's)

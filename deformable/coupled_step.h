@@ -31,6 +31,12 @@
 // kMaxContactRounds solves. After the step, every contact's `force` is the
 // force actually integrated (what a rigid side must receive, opposite;
 // zero if released).
+//
+// Static friction (contact.h, ContactSettings::stick) decides the same way:
+// a contact with friction first sticks unless its force at the warm start
+// leaves the friction cone; one whose integrated force leaves it slides
+// (the smooth law) from the next round on, for the rest of the step. After
+// the step each contact's `stick` holds its friction spring for the next.
 
 #include <span>
 #include <vector>
@@ -48,6 +54,7 @@ struct CoupledStepReport {
   double residual = 0.0;      // relative, of the last round
   int rounds = 1;             // solves
   int released_contacts = 0;  // left without force after the last round
+  int stuck_contacts = 0;     // held by static friction (ContactPoint::stuck)
 };
 
 // Rigid bodies solved with the step. A rigid side that keeps its velocity
@@ -101,6 +108,10 @@ struct RigidSystem {
 inline constexpr int kMaxContactRounds = 8;
 // The relative residual of the solves that only settle which contacts push.
 inline constexpr double kSettlingTolerance = 1e-3;
+// A sliding contact's friction is set again (and the step solved again)
+// when the normal force a solve integrates differs from the one it took by
+// more than this share.
+inline constexpr double kSlidingForceTolerance = 0.01;
 // Up to this many rigid degrees of freedom in a step, the preconditioner
 // eliminates them exactly (a dense Schur complement over the vertices'
 // blocks); beyond, each tree's block alone.

@@ -204,7 +204,7 @@ class SceneParser {
         } else if (kind == "attach") {
           scene.attachments.push_back(Attach(child));
         } else if (kind == "contact") {
-          CheckAttributes(child, {"method", "stiffness", "damping", "friction", "slip"});
+          CheckAttributes(child, {"method", "stiffness", "damping", "friction", "slip", "stick"});
           if (const char* method = child->Attribute("method")) {
             std::string m(method);
             if (m == "consistent") {
@@ -220,6 +220,7 @@ class SceneParser {
           // a sticking contact; 1 um/s is the smallest tried: the slope of
           // tests/scenarios/friction_test.cc holds, gripper.xml solves)
           scene.slip = Number(child, "slip", 1e-6, 1.0);
+          scene.stick = Bool(child, "stick", true);
         } else if (kind == "solver") {
           CheckAttributes(child, {"substeps", "linear", "tolerance", "maxiter", "rigid"});
           scene.solver.substeps = static_cast<int>(Number(child, "substeps", 1, 1000).value_or(1));

@@ -77,6 +77,9 @@ struct SceneSpec {
   // friction's smoothing velocity v_s (m/s): below it, friction grows with
   // the slip (ContactSettings); default 1e-3
   std::optional<double> slip;
+  // static friction (ContactSettings::stick): contacts inside the friction
+  // cone stick; false: the smooth law alone, which creeps under load
+  bool stick = true;
   SolverSpec solver;
   std::vector<TetBodySpec> tetbodies;
   std::vector<RigidTetSpec> rigidtets;

@@ -415,6 +415,7 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
   // deformables (their meshes come first: the MJCF gets a skin for each)
   const ContactParams& scene_contact = scene.contact;
   if (scene.slip) world->contact_settings_.slip_velocity = *scene.slip;
+  world->contact_settings_.stick = scene.stick;
   std::string skins;
   const double available_memory = options.memory_limit.value_or(AvailableMemory());
   double needed_memory = 0.0;
@@ -1054,7 +1055,34 @@ void World::AddGeomContacts() {
     contact.damping_ratio = damping_[i];
     contacts_.push_back(contact);
     contact_rigid_body_.push_back(body);
+    contact_key_.push_back({i, v, -1 - g});
   });
+}
+
+void World::RestoreFrictionSprings() {
+  for (size_t c = 0; c < contacts_.size(); ++c) {
+    auto it = std::lower_bound(springs_.begin(), springs_.end(), contact_key_[c],
+                               [](const std::pair<ContactKey, Eigen::Vector3d>& a,
+                                  const ContactKey& b) { return a.first < b; });
+    if (it == springs_.end() || it->first != contact_key_[c]) continue;
+    // (onto this step's tangent plane, its length kept: the spring's force
+    // turns with the contact's direction)
+    const Eigen::Vector3d& normal = contacts_[c].direction;
+    const Eigen::Vector3d s = it->second - it->second.dot(normal) * normal;
+    const double length = s.norm();
+    if (length > 0.0) contacts_[c].stick = (it->second.norm() / length) * s;
+  }
+}
+
+void World::KeepFrictionSprings() {
+  springs_.clear();
+  for (size_t c = 0; c < contacts_.size(); ++c) {
+    if (contacts_[c].stick != Eigen::Vector3d::Zero()) {
+      springs_.emplace_back(contact_key_[c], contacts_[c].stick);
+    }
+  }
+  std::sort(springs_.begin(), springs_.end(),
+            [](const auto& a, const auto& b) { return a.first < b.first; });
 }
 
 void World::BuildCollisionObjects() {
@@ -1111,6 +1139,7 @@ bool World::RigidBodyIsStatic(int body) const {
 void World::CollectContacts() {
   contacts_.clear();
   contact_rigid_body_.clear();
+  contact_key_.clear();
   BuildCollisionObjects();
   const int num_deformables = static_cast<int>(bodies_.size());
   // a point of A inside B stands for its own contact area, but for no more
@@ -1163,6 +1192,7 @@ void World::CollectContacts() {
     }
     contacts_.push_back(contact);
     contact_rigid_body_.push_back(rigid);
+    contact_key_.push_back({r.object, r.vertex, r.penetrated});
   }
   const PenetrationStats& stats = solver_.stats();
   metrics_.penetration_ms += solver_.timings().total * 1e3;
@@ -1226,10 +1256,13 @@ void World::Step() {
     BuildRigidSystem(settings.dt);
     phase = Clock::now();
     ContactSettings contact_settings = contact_settings_;
+    RestoreFrictionSprings();
     CoupledStepReport report = StepCoupled(bodies, contacts_, contact_settings, settings, &rigid_);
+    KeepFrictionSprings();
     metrics_.solver_iterations += report.iterations;
     metrics_.contact_rounds += report.rounds;
     metrics_.released_contacts += report.released_contacts;
+    metrics_.stuck_contacts += report.stuck_contacts;
     metrics_.deformable_ms += MillisecondsSince(phase);
     if (report.status != StepStatus::kOk) {
       metrics_.status = report.status;

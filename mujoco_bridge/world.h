@@ -81,6 +81,7 @@ struct StepMetrics {
   // and the contacts released, over substeps
   int contact_rounds = 0;
   int released_contacts = 0;
+  int stuck_contacts = 0;  // held by static friction (ContactPoint::stuck), over substeps
   StepStatus status = StepStatus::kOk;
   std::string message;  // with kDiverged: body, vertex, step
 };
@@ -247,6 +248,20 @@ class World {
   std::vector<CollisionObject> objects_;
   std::vector<ContactPoint> contacts_;
   std::vector<int> contact_rigid_body_;  // per contact: MuJoCo body on the rigid side, or -1
+  // Static friction: a contact is the same from step to step while the same
+  // point (collision object and vertex, a deformable's vertex against a
+  // geom) is inside the same object or geom; its friction spring
+  // (ContactPoint::stick) carries over, sorted by key (KeepFrictionSprings)
+  struct ContactKey {
+    int object = -1;  // collision object of the point (objects_), or deformable against a geom
+    int vertex = -1;
+    int other = -1;  // penetrated collision object, or -1 - geom
+    auto operator<=>(const ContactKey&) const = default;
+  };
+  std::vector<ContactKey> contact_key_;  // per contact
+  std::vector<std::pair<ContactKey, Eigen::Vector3d>> springs_;
+  void RestoreFrictionSprings();
+  void KeepFrictionSprings();
   std::vector<Eigen::Vector3d> reaction_points_;  // see KeepReactionPoints
   // MuJoCo's trees (by root body): first DoF and count; this substep's
   // trees in the rigid system (BuildRigidSystem) and each root's slot among them

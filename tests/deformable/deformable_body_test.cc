@@ -2,8 +2,10 @@
 
 #include <gtest/gtest.h>
 
+#include <array>
 #include <cmath>
 #include <limits>
+#include <map>
 #include <memory>
 #include <numbers>
 #include <span>
@@ -392,7 +394,9 @@ TEST(DeformableBody, CollisionConservesLinearMomentum) {
   PenetrationSolver solver;
   const double kappa = DefaultContactPressureStiffness(*model);
   const Eigen::Vector3d p0 = a.LinearMomentum() + b.LinearMomentum();
-  int contact_steps = 0;
+  int contact_steps = 0, stuck = 0;
+  // the friction springs (static friction), by point and penetrated body
+  std::map<std::array<int, 3>, Eigen::Vector3d> springs;
   for (int s = 0; s < 200; ++s) {
     CollisionObject objects[2] = {{&a.mesh(), &a.positions(), false, false},
                                   {&b.mesh(), &b.positions(), false, false}};
@@ -408,20 +412,128 @@ TEST(DeformableBody, CollisionConservesLinearMomentum) {
       c.direction = r.direction;
       c.stiffness = kappa * bodies[r.object]->model().contact_areas()[r.vertex];
       c.friction = 0.3;
+      auto spring = springs.find({c.body_a, c.vertex_a, c.body_b});
+      if (spring != springs.end()) c.stick = spring->second;
       contacts.push_back(c);
     }
     contact_steps += !contacts.empty();
     CoupledStepReport report = StepCoupled(bodies, contacts, ContactSettings{}, settings);
     ASSERT_EQ(report.status, StepStatus::kOk);
+    stuck += report.stuck_contacts;
+    springs.clear();
+    for (const ContactPoint& c : contacts) springs[{c.body_a, c.vertex_a, c.body_b}] = c.stick;
   }
   const Eigen::Vector3d p1 = a.LinearMomentum() + b.LinearMomentum();
   EXPECT_GT(contact_steps, 5);
+  EXPECT_GT(stuck, 0) << "static friction held some contacts";
   EXPECT_LT(a.LinearMomentum().x(), p0.x()) << "a was slowed by the impact";
   const double scale = a.model().total_mass() * 1.5;
   std::printf("momentum before (%.6f %.6f %.6f), after (%.6f %.6f %.6f)\n", p0.x(), p0.y(), p0.z(),
               p1.x(), p1.y(), p1.z());
   // conserved up to the linear solver's tolerance (1e-6 relative per step)
   EXPECT_LT((p1 - p0).norm(), 1e-4 * scale);
+}
+
+// Static friction (contact.h, ContactSettings::stick) against statics and
+// Coulomb: a cube on the half-space z <= 0 under gravity tilted by theta
+// (a slope), q = tan theta / mu, for 2 s. Inside the cone (q = 0.8) the
+// cube comes to rest and stays: its contacts stick, each force inside its cone, and
+// together they hold its weight (Newton at rest); the smooth law alone lets
+// it creep at v_s q / sqrt(1 - q^2) (1.3 mm/s). Beyond the cone (q = 1.5) it
+// slides at g (sin theta - mu cos theta), as without static friction. The
+// friction springs are carried from step to step by vertex, as World does
+// by contact.
+struct SlopeRun {
+  double drift = 0.0;         // m: the centre of mass's travel from 1 s to 2 s
+  double acceleration = 0.0;  // m/s^2 along the slope, 1 s to 2 s
+  double worst_cone = 0.0;    // largest |f_t| / (mu f_n) of a stuck contact, over all steps
+  Eigen::Vector3d contact_force = Eigen::Vector3d::Zero();  // their sum, last step
+  int stuck = 0;                                            // contacts stuck, last step
+  int contacts = 0;                                         // contacts, last step
+  double weight = 0.0;                                      // N
+};
+SlopeRun CubeOnASlope(double q, bool stick) {
+  constexpr double kMu = 0.5, kG = 9.81;
+  // (stiffness damping settles its rocking on the contacts, and leaves
+  // its motion as a whole alone)
+  auto model = Model("box:size=0.05:res=3", Material{1e5, 0.3, 1000, 0, 0.002});
+  DeformableBody body(model, "cube");
+  body.Reset(At({0.0, 0.0, 0.05}));
+  const double theta = std::atan(q * kMu);
+  StepSettings settings;
+  settings.gravity = kG * Eigen::Vector3d(std::sin(theta), 0.0, -std::cos(theta));
+  ContactSettings contact_settings;
+  contact_settings.stick = stick;
+  const double kappa = DefaultContactPressureStiffness(*model);
+  DeformableBody* bodies[1] = {&body};
+  std::vector<Eigen::Vector3d> springs(static_cast<size_t>(body.num_vertices()),
+                                       Eigen::Vector3d::Zero());
+  SlopeRun run;
+  run.weight = model->total_mass() * kG;
+  double x_half = 0.0, v_half = 0.0;
+  std::vector<ContactPoint> contacts;
+  for (int s = 0; s < 2000; ++s) {
+    contacts.clear();
+    AddHalfSpaceContacts(0, body, Eigen::Vector3d::UnitZ(), 0.0, kappa, kMu, contacts);
+    for (ContactPoint& contact : contacts) contact.stick = springs[contact.vertex_a];
+    const CoupledStepReport report = StepCoupled(bodies, contacts, contact_settings, settings);
+    EXPECT_EQ(report.status, StepStatus::kOk);
+    std::fill(springs.begin(), springs.end(), Eigen::Vector3d::Zero());
+    for (const ContactPoint& contact : contacts) {
+      springs[contact.vertex_a] = contact.stick;
+      const double normal = contact.force.dot(contact.direction);
+      const double tangential = (contact.force - normal * contact.direction).norm();
+      if (contact.stuck) {
+        run.worst_cone = std::max(run.worst_cone, tangential / (kMu * std::max(normal, 0.0)));
+      }
+    }
+    run.stuck = report.stuck_contacts;
+    run.contacts = static_cast<int>(contacts.size());
+    if (s == 999) {
+      x_half = body.CenterOfMass().x();
+      v_half = body.LinearMomentum().x() / model->total_mass();
+    }
+  }
+  run.drift = body.CenterOfMass().x() - x_half;
+  run.acceleration = (body.LinearMomentum().x() / model->total_mass() - v_half) / 1.0;
+  for (const ContactPoint& contact : contacts) run.contact_force += contact.force;
+  return run;
+}
+
+TEST(StaticFriction, HoldsACubeInsideTheConeAndLetsItSlideBeyond) {
+  const double mu = 0.5, g = 9.81, q = 0.8;
+  const SlopeRun held = CubeOnASlope(q, /*stick=*/true);
+  const SlopeRun creeping = CubeOnASlope(q, /*stick=*/false);
+  const double theta = std::atan(q * mu);
+  const Eigen::Vector3d weight =
+      held.weight * Eigen::Vector3d(std::sin(theta), 0.0, -std::cos(theta));
+  std::printf(
+      "q = 0.8: drift over 1 s %.3g m with static friction, %.3g m without; %d of %d "
+      "contacts stuck, the worst at %.3f of its cone; contact forces + weight %.3g N\n",
+      held.drift, creeping.drift, held.stuck, held.contacts, held.worst_cone,
+      (held.contact_force + weight).norm());
+  const double creep = ContactSettings{}.slip_velocity * q / std::sqrt(1.0 - q * q);
+  EXPECT_NEAR(creeping.drift, creep, 0.05 * creep) << "the smooth law's creep";
+  EXPECT_LT(std::abs(held.drift), 1e-2 * creep) << "held still";
+  EXPECT_GE(held.contacts, 12) << "the bottom face's 4 x 4 vertices, but a lifted edge";
+  EXPECT_EQ(held.stuck, held.contacts) << "all of them stuck";
+  // at rest the contacts carry the weight, -m g (to what is left of its
+  // rocking on the contacts)
+  EXPECT_LT((held.contact_force + weight).norm(), 1e-5 * held.weight);
+
+  const double q_slide = 1.5, theta_slide = std::atan(q_slide * mu);
+  const double coulomb = g * (std::sin(theta_slide) - mu * std::cos(theta_slide));
+  const SlopeRun sliding = CubeOnASlope(q_slide, /*stick=*/true);
+  std::printf(
+      "q = 1.5: acceleration %.4f m/s^2 (Coulomb %.4f), %d contacts stuck, the worst at "
+      "%.3f of its cone\n",
+      sliding.acceleration, coulomb, sliding.stuck, sliding.worst_cone);
+  EXPECT_NEAR(sliding.acceleration, coulomb, 0.01 * coulomb);
+  EXPECT_EQ(sliding.stuck, 0);
+  // a stuck contact's friction never beyond Coulomb's limit (landing too:
+  // a contact whose sticking force would leave its cone slides)
+  EXPECT_LE(held.worst_cone, 1.0 + 1e-9);
+  EXPECT_LE(sliding.worst_cone, 1.0 + 1e-9);
 }
 
 // Several bodies pressed into the floor, stepped together: the bodies

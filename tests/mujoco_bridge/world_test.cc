@@ -926,7 +926,8 @@ TEST(RunCommand, OutputsParse) {
   EXPECT_EQ(header,
             "step,time,colliding_points,max_depth,mean_depth,kinetic_deformable,kinetic_rigid,px,"
             "py,pz,direction_change_max_deg,neighbour_angle_mean_deg,fallback_points,"
-            "unresolved_points,solver_iterations,contact_rounds,released_contacts,wall_ms");
+            "unresolved_points,solver_iterations,contact_rounds,released_contacts,stuck_contacts,"
+            "wall_ms");
   // the cube lands on the box: contacts, none of them an artifact
   const nlohmann::json& metrics = summary["metrics"];
   EXPECT_GT(metrics["colliding_points"].get<long>(), 0);
@@ -942,18 +943,19 @@ TEST(RunCommand, OutputsParse) {
   EXPECT_GT(contacts["penetration_us_per_point"].get<double>(), 0.0);
   // the solver's columns add up to the summary's means; every step solves
   // at least once, twice with contacts (settling, then precise), and
-  // releases no more contacts than it has
+  // releases no more contacts than it has, nor sticks more than it keeps
   int rows = 0;
   long iterations = 0, rounds = 0, released = 0;
   while (std::getline(steps, line)) {
     std::vector<std::string> fields;
     std::stringstream row(line);
     for (std::string field; std::getline(row, field, ',');) fields.push_back(field);
-    ASSERT_EQ(fields.size(), 18u) << line;
+    ASSERT_EQ(fields.size(), 19u) << line;
     const int colliding = std::stoi(fields[2]);
     const int step_rounds = std::stoi(fields[15]), step_released = std::stoi(fields[16]);
     EXPECT_GE(step_rounds, colliding > 0 ? 2 : 1) << line;
     EXPECT_LE(step_released, colliding) << line;
+    EXPECT_LE(std::stoi(fields[17]), colliding - step_released) << line << ": stuck, not released";
     iterations += std::stol(fields[14]);
     rounds += step_rounds;
     released += step_released;

@@ -123,15 +123,18 @@ TEST(PaperScenarios, MixedObjectsReachRestAndStayThere) {
   WorldOptions options;
   options.timestep = 0.005;
   Scenario scenario(PaperScene("mixed.xml"), options);
-  // at rest: the fastest vertex slower than 2 cm/s for 0.1 s in a row
-  const double rest_speed = 0.02;  // m/s
+  // at rest: the fastest vertex slower than 5 mm/s for 0.2 s in a row (the
+  // sphere, held by static friction, rocks on its facets and slows down
+  // only as its mass damping takes the motion: about 4 s); from then on
+  // none faster than 2 cm/s
+  const double settled_speed = 0.005, rest_speed = 0.02;  // m/s
   int slow_steps = 0;
   auto at_rest = [&](const World& w) {
-    slow_steps = MaxSpeed(w) < rest_speed ? slow_steps + 1 : 0;
-    return slow_steps * w.timestep() >= 0.1;
+    slow_steps = MaxSpeed(w) < settled_speed ? slow_steps + 1 : 0;
+    return slow_steps * w.timestep() >= 0.2;
   };
-  ASSERT_TRUE(scenario.RunUntil(at_rest, 3.0))
-      << (scenario.ok() ? "not at rest after 3 s" : scenario.message());
+  ASSERT_TRUE(scenario.RunUntil(at_rest, 6.0))
+      << (scenario.ok() ? "not at rest after 6 s" : scenario.message());
   const double rest_time = scenario.world().time();
   std::vector<Eigen::Vector3d> centres;
   centres.reserve(scenario.world().num_deformables());
