@@ -20,6 +20,7 @@
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+#include <array>
 #include <functional>
 #include <memory>
 #include <optional>
@@ -252,12 +253,9 @@ class World {
   // point (collision object and vertex, a deformable's vertex against a
   // geom) is inside the same object or geom; its friction spring
   // (ContactPoint::stick) carries over, sorted by key (KeepFrictionSprings)
-  struct ContactKey {
-    int object = -1;  // collision object of the point (objects_), or deformable against a geom
-    int vertex = -1;
-    int other = -1;  // penetrated collision object, or -1 - geom
-    auto operator<=>(const ContactKey&) const = default;
-  };
+  // (the point's collision object in objects_, or its deformable against a
+  // geom; its vertex; the penetrated collision object, or -1 - the geom)
+  using ContactKey = std::array<int, 3>;
   std::vector<ContactKey> contact_key_;  // per contact
   std::vector<std::pair<ContactKey, Eigen::Vector3d>> springs_;
   void RestoreFrictionSprings();
