@@ -7,7 +7,8 @@
 //   friction  f_t = -mu f_n v_t / sqrt(|v_t|^2 + v_s^2)   (smooth Coulomb, |f_t| < mu f_n)
 //             or, with static friction (ContactSettings::stick, below),
 //             sticking  f_t = -k_t s - c_t v_t
-//             sliding   f_t = mu f_n t    (t: a unit tangent, the way the sticking force pulled)
+//             sliding   f_t = mu f_n+ t   (t: a unit tangent, the way the sticking force pulled;
+//                                          f_n+ the normal force the step integrates)
 //   force on A = f_n r + f_t,  on B the opposite
 // where v_B is B's velocity at the point (the barycentric velocity of B's
 // containing tetrahedron, or a rigid body's point velocity) and m the
@@ -31,10 +32,12 @@
 // stick_stiffness k and c_t = 2 zeta sqrt(k_t m); so a held body's
 // relative velocity goes to zero. A contact whose sticking force would
 // leave the cone |f_t| <= mu f_n slides instead: Coulomb's mu f_n, along the
-// sticking force it replaces (the trial force projected onto the cone),
-// constant through the step; s is then where the spring holds that force.
-// coupled_step.h decides which contacts stick; the caller keeps s from step
-// to step (ContactPoint::stick).
+// sticking force it replaces (the trial force projected onto the cone), a
+// constant force through the step (no derivative) at the normal force the
+// step integrates; s is then where the spring holds that force. A sliding
+// contact that the step would turn around sticks instead. coupled_step.h
+// decides, in the rounds of its solve; the caller keeps s from step to
+// step (ContactPoint::stick).
 
 #include <Eigen/Core>
 #include <span>
@@ -80,7 +83,7 @@ struct ContactPoint {
 };
 
 struct ContactSettings {
-  double slip_velocity = 1e-3;   // v_s, m/s: friction is smooth below this slip
+  double slip_velocity = 1e-3;   // v_s, m/s: the smooth law's (stick false) smoothing slip
   bool stick = true;             // static friction: a contact inside the cone sticks
   double stick_stiffness = 1.0;  // k_t / k: the sticking spring's stiffness, of the normal's
 };

@@ -285,7 +285,6 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     contact_rhs[c] = dt * (linear[c].force - dt * linear[c].stiffness * linear[c].rigid_velocity +
                            linear[c].damping * coupling.Jv_start);
   };
-  // (force: the sticking force at a trial solution, outside the cone)
   // (to sliding, Coulomb's force along the tangential part of `along` at
   // the normal force of `force`: the sticking force at a trial solution)
   auto slide_along = [&](size_t c, const Eigen::Vector3d& along, const Eigen::Vector3d& force) {

@@ -32,11 +32,16 @@
 // force actually integrated (what a rigid side must receive, opposite;
 // zero if released).
 //
-// Static friction (contact.h, ContactSettings::stick) decides the same way:
-// a contact with friction first sticks unless its force at the warm start
-// leaves the friction cone; one whose integrated force leaves it slides
-// (the smooth law) from the next round on, for the rest of the step. After
-// the step each contact's `stick` holds its friction spring for the next.
+// Static friction (contact.h, ContactSettings::stick) is decided the same
+// way: a contact with friction first sticks unless its force at the warm
+// start leaves the friction cone (it then slides, along the sticking force
+// at the step's start velocities: its slip's way); one whose integrated
+// force leaves the cone slides from the next round on, Coulomb's force
+// along that force; a sliding one that the solution turns around sticks
+// again (at most three switches a contact, the last to sliding); and a
+// sliding contact's force follows the normal force each solution
+// integrates (to kSlidingForceTolerance). After the step each contact's
+// `stick` holds its friction spring for the next.
 
 #include <span>
 #include <vector>

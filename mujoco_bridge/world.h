@@ -250,11 +250,10 @@ class World {
   std::vector<ContactPoint> contacts_;
   std::vector<int> contact_rigid_body_;  // per contact: MuJoCo body on the rigid side, or -1
   // Static friction: a contact is the same from step to step while the same
-  // point (collision object and vertex, a deformable's vertex against a
-  // geom) is inside the same object or geom; its friction spring
-  // (ContactPoint::stick) carries over, sorted by key (KeepFrictionSprings)
-  // (the point's collision object in objects_, or its deformable against a
-  // geom; its vertex; the penetrated collision object, or -1 - the geom)
+  // point is inside the same object or geom, and its friction spring
+  // (ContactPoint::stick) carries over (springs_, sorted by key). A key:
+  // the point's collision object in objects_ (or its deformable, against a
+  // geom), its vertex, the penetrated collision object (or -1 - the geom).
   using ContactKey = std::array<int, 3>;
   std::vector<ContactKey> contact_key_;  // per contact
   std::vector<std::pair<ContactKey, Eigen::Vector3d>> springs_;
