@@ -132,11 +132,16 @@ void MultiplyVerticesToRigid(const std::vector<const Coupling*>& couplings,
   }
 }
 
+// Coulomb's limit on the friction of a contact whose force on A is `force`,
+// mu f_n (f_n its normal part, or 0 where it pulls)
+double FrictionLimit(const Eigen::Vector3d& force, const ContactPoint& contact) {
+  return contact.friction * std::max(0.0, force.dot(contact.direction));
+}
+
 // whether a contact's force on A lies in its friction cone, |f_t| <= mu f_n
 bool InsideFrictionCone(const Eigen::Vector3d& force, const ContactPoint& contact) {
-  const double normal = force.dot(contact.direction);
-  const Eigen::Vector3d tangential = force - normal * contact.direction;
-  return tangential.norm() <= contact.friction * std::max(0.0, normal);
+  const Eigen::Vector3d tangential = force - force.dot(contact.direction) * contact.direction;
+  return tangential.norm() <= FrictionLimit(force, contact);
 }
 
 }  // namespace
@@ -291,7 +296,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     const Eigen::Vector3d& normal = contacts[c].direction;
     const Eigen::Vector3d tangential = along - along.dot(normal) * normal;
     const double length = tangential.norm();
-    const double limit = contacts[c].friction * std::max(0.0, force.dot(normal));
+    const double limit = FrictionLimit(force, contacts[c]);
     slide[c] = length > 0.0 ? (limit / length * tangential).eval() : Eigen::Vector3d::Zero();
     law[c] = FrictionLaw::kSliding;
     linearize(c);
@@ -377,13 +382,14 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   Eigen::VectorXd v_new = v + delta;
   carry(v_new, /*with_constant=*/true);  // (the same: J q + constant = the pin velocity)
   for (size_t c = 0; c < contacts.size(); ++c) {
-    if (law[c] == FrictionLaw::kSticking) {
-      const Eigen::Vector3d force = integrated_force(c, v_new);
+    Eigen::Vector3d force = integrated_force(c, v_new);
+    if (law[c] == FrictionLaw::kSticking && !InsideFrictionCone(force, contacts[c])) {
       // (sliding: along the sticking force at the step's start velocities,
       // which a slipping contact's slip sets, not the warm start's)
-      if (!InsideFrictionCone(force, contacts[c])) slide_along(c, integrated_force(c, v), force);
+      slide_along(c, integrated_force(c, v), force);
+      force = integrated_force(c, v_new);
     }
-    couplings[c].active = integrated_force(c, v_new).dot(contacts[c].direction) >= 0.0;
+    couplings[c].active = force.dot(contacts[c].direction) >= 0.0;
   }
   // the rigid trees eliminated in the preconditioner (kMaxEliminatedRigidDofs)
   const int n_deformable = offset[num_bodies];
@@ -572,8 +578,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
             // (Coulomb's force at the normal force this solution integrates:
             // at a stiff contact and a long step, the step's start's can be
             // far larger, and friction from it would throw the bodies)
-            const Eigen::Vector3d& normal = contacts[c].direction;
-            const double limit = contacts[c].friction * std::max(0.0, force.dot(normal));
+            const double limit = FrictionLimit(force, contacts[c]);
             const double length = slide[c].norm();
             if (length > 0.0 && std::abs(length - limit) > kSlidingForceTolerance * length) {
               slide[c] *= limit / length;
@@ -616,7 +621,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
       s = -contact.force / k_t;
     }
     s -= s.dot(normal) * normal;
-    const double limit = contact.friction * std::max(0.0, contact.force.dot(normal)) / k_t;
+    const double limit = FrictionLimit(contact.force, contact) / k_t;
     if (s.norm() > limit) s *= limit / s.norm();
     contact.stick = s;
   }
