@@ -282,8 +282,8 @@ RolloutSummary RolloutMetrics::Summarize(World& world) const {
           d.norm() > 0.0 ? (CenterVelocity(world, pair.first) - CenterVelocity(world, pair.second))
                                .dot(d.normalized())
                          : 0.0;
-      // only mesh points can be held by inconsistent depths: a primitive
-      // geom's signed distance always pushes out
+      // only mesh points can be held by inconsistent depths: a geom's
+      // signed distance always pushes out
       auto mesh = deepest_mesh.find(pair);
       const bool by_mesh =
           mesh != deepest_mesh.end() && mesh->second > options_.sticking_fraction * soft_thickness;

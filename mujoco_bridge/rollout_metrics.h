@@ -23,9 +23,9 @@
 //   scales with the soft side) while at rest relative
 //   to each other: the distance between their centres changes slower than
 //   rest_speed (a stuck pair may still drift or spin as one). Only points
-//   inside meshes count (deformables, proxies): a primitive geom's signed
+//   inside tetrahedral meshes count (deformables, proxies): a geom's signed
 //   distance always pushes out and cannot hold anything. Deep pairs that are
-//   still moving, or deep only in primitive geoms (a soft contact under load),
+//   still moving, or deep only in geoms (a soft contact under load),
 //   are counted in interpenetrating_pairs.
 // depths here are exact (World::MeasureInterpenetration: distance to the
 //   penetrated surface), so both depth methods are judged by the same ruler.
@@ -34,7 +34,7 @@
 // temporal continuity: the change of a colliding vertex's direction from one
 //   step to the next (same vertex, same penetrated object): max and mean.
 // Spatial and temporal figures use the depth method's own directions (mesh
-// contacts only; primitive geoms use exact signed distances either way).
+// contacts only; geoms use their signed distances either way).
 
 #include <Eigen/Core>
 #include <map>

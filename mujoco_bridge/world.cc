@@ -19,6 +19,7 @@
 #include "mesh/generators.h"
 #include "mesh/mesh_io.h"
 #include "mesh/same_bits.h"
+#include "mujoco_bridge/geom_shape.h"
 #include "mujoco_bridge/model_names.h"
 
 namespace tetcosim {
@@ -147,65 +148,12 @@ Eigen::Isometry3d Advance(Eigen::Isometry3d X, const Eigen::Vector3d& omega,
   return X;
 }
 
-// signed distance of p (geom frame) to a primitive geom, and the unit
-// outward direction there; false for geom types without one
-bool GeomDistance(int type, const double* size, const Eigen::Vector3d& p, double& distance,
-                  Eigen::Vector3d& normal) {
-  switch (type) {
-    case mjGEOM_PLANE:
-      distance = p.z();
-      normal = Eigen::Vector3d::UnitZ();
-      return true;
-    case mjGEOM_SPHERE: {
-      double r = p.norm();
-      distance = r - size[0];
-      normal = r > 0.0 ? Eigen::Vector3d(p / r) : Eigen::Vector3d::UnitZ();
-      return true;
-    }
-    case mjGEOM_CAPSULE: {
-      Eigen::Vector3d axis_point(0.0, 0.0, std::clamp(p.z(), -size[1], size[1]));
-      Eigen::Vector3d offset = p - axis_point;
-      double r = offset.norm();
-      distance = r - size[0];
-      normal = r > 0.0 ? Eigen::Vector3d(offset / r) : Eigen::Vector3d::UnitX();
-      return true;
-    }
-    case mjGEOM_BOX: {
-      Eigen::Vector3d q = p.cwiseAbs() - Eigen::Vector3d(size[0], size[1], size[2]);
-      if ((q.array() > 0.0).any()) {
-        Eigen::Vector3d outside = q.cwiseMax(0.0);
-        distance = outside.norm();
-        normal = (outside.array() * p.array().sign()).matrix() / distance;
-      } else {
-        int axis;
-        distance = q.maxCoeff(&axis);
-        normal = Eigen::Vector3d::Unit(axis) * (p[axis] >= 0.0 ? 1.0 : -1.0);
-      }
-      return true;
-    }
-    case mjGEOM_CYLINDER: {
-      double radial = std::hypot(p.x(), p.y());
-      Eigen::Vector3d radial_dir = radial > 0.0
-                                       ? Eigen::Vector3d(p.x() / radial, p.y() / radial, 0.0)
-                                       : Eigen::Vector3d::UnitX();
-      Eigen::Vector2d q(radial - size[0], std::abs(p.z()) - size[1]);
-      Eigen::Vector3d axial_dir(0.0, 0.0, p.z() >= 0.0 ? 1.0 : -1.0);
-      if (q.x() > 0.0 || q.y() > 0.0) {
-        Eigen::Vector2d outside = q.cwiseMax(0.0);
-        distance = outside.norm();
-        normal = (outside.x() * radial_dir + outside.y() * axial_dir) / distance;
-      } else if (q.x() > q.y()) {
-        distance = q.x();
-        normal = radial_dir;
-      } else {
-        distance = q.y();
-        normal = axial_dir;
-      }
-      return true;
-    }
-    default:
-      return false;
-  }
+// "geom 'name'", or "geom 3 of body 'name'" for one without a name (for errors)
+std::string GeomName(const mjModel* m, int geom) {
+  if (const char* name = mj_id2name(m, mjOBJ_GEOM, geom)) return std::string("geom '") + name + "'";
+  const char* body = mj_id2name(m, mjOBJ_BODY, m->geom_bodyid[geom]);
+  return "geom " + std::to_string(geom) + " of body " +
+         (body ? std::string("'") + body + "'" : std::to_string(m->geom_bodyid[geom]));
 }
 
 // a tetrahedral mesh of a primitive geom, in the geom's own frame
@@ -629,6 +577,19 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
     }
   }
 
+  // the geoms deformables meet by their shapes: those that collide with
+  // them (contype or conaffinity bit 1, as a deformable's are both 1) and
+  // have no proxy
+  for (int g = 0; g < m->ngeom; ++g) {
+    if (world->geom_has_proxy_[g]) continue;
+    if (!(m->geom_contype[g] & 1) && !(m->geom_conaffinity[g] & 1)) continue;
+    try {
+      world->geom_shapes_.emplace_back(g, MakeGeomShape(m, g, GeomName(m, g)));
+    } catch (const Error& e) {
+      ThrowAt(scene_path, 0, e.what());
+    }
+  }
+
   // each tree's degrees of freedom (MuJoCo numbers them body by body, bodies
   // depth first: a tree's are consecutive), by the tree's root body
   world->tree_first_dof_.assign(m->nbody, -1);
@@ -1004,16 +965,7 @@ void World::UpdateProxies() {
 void World::ForEachGeomPenetration(
     const std::function<void(int, int, int, double, const Eigen::Vector3d&)>& visit) const {
   const mjModel* m = model_;
-  for (int g = 0; g < m->ngeom; ++g) {
-    if (geom_has_proxy_[g]) continue;
-    if (!(m->geom_contype[g] & 1) && !(m->geom_conaffinity[g] & 1)) {
-      continue;  // deformables: contype = conaffinity = 1
-    }
-    const int type = m->geom_type[g];
-    if (type != mjGEOM_PLANE && type != mjGEOM_SPHERE && type != mjGEOM_CAPSULE &&
-        type != mjGEOM_BOX && type != mjGEOM_CYLINDER) {
-      continue;
-    }
+  for (const auto& [g, shape] : geom_shapes_) {
     Eigen::Vector3d x_g = Eigen::Map<const Eigen::Vector3d>(data_->geom_xpos + 3 * g);
     Eigen::Matrix3d R_g = Eigen::Map<const MjRotation>(data_->geom_xmat + 9 * g);
     const int body = m->geom_bodyid[g];
@@ -1022,16 +974,17 @@ void World::ForEachGeomPenetration(
       x_g = moved * x_g;
       R_g = moved.linear() * R_g;
     }
+    // (MuJoCo 2.2.2 gives planes and height fields no bounding radius)
+    const bool bounded = shape.type != mjGEOM_PLANE && shape.type != mjGEOM_HFIELD;
     for (size_t i = 0; i < bodies_.size(); ++i) {
       const DeformableBody& deformable = *bodies_[i];
       for (int v = 0; v < deformable.num_vertices(); ++v) {
         Eigen::Vector3d p = deformable.positions().row(v).transpose();
-        if (type != mjGEOM_PLANE && (p - x_g).norm() > m->geom_rbound[g]) continue;
-        double distance = 0.0;
-        Eigen::Vector3d normal = Eigen::Vector3d::UnitZ();
-        GeomDistance(type, m->geom_size + 3 * g, R_g.transpose() * (p - x_g), distance, normal);
-        if (distance >= 0.0) continue;
-        visit(static_cast<int>(i), v, g, -distance, R_g * normal);
+        if (bounded && (p - x_g).norm() > m->geom_rbound[g]) continue;
+        double depth = 0.0;
+        Eigen::Vector3d direction;
+        if (!GeomPenetration(shape, R_g.transpose() * (p - x_g), depth, direction)) continue;
+        visit(static_cast<int>(i), v, g, depth, R_g * direction);
       }
     }
   }

@@ -6,7 +6,8 @@
 //   2. rigid proxies follow their bodies (xpos, xmat); rigid point
 //      velocities from mj_objectVelocity;
 //   3. collision: consistent (or closest-feature) penetration depth between
-//      deformables and proxies, analytic signed distance to primitive geoms;
+//      deformables and proxies, signed distance to the other geoms
+//      (geom_shape.h);
 //   4. the deformables advance by dt (or substeps) in one coupled implicit
 //      solve, with the MuJoCo trees in contact as unknowns of it too
 //      (RigidSystem), which yields the contact forces actually integrated;
@@ -25,11 +26,13 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "collision/penetration.h"
 #include "deformable/coupled_step.h"
 #include "deformable/deformable_body.h"
+#include "mujoco_bridge/geom_shape.h"
 #include "mujoco_bridge/scene.h"
 
 struct mjModel_;
@@ -55,7 +58,7 @@ struct Interpenetration {
   int penetrated = -1;  // the object it is inside
   double depth = 0.0;   // m: distance to the penetrated object's surface
   Eigen::Vector3d point = Eigen::Vector3d::Zero();  // world frame
-  bool signed_distance = false;                     // inside a primitive geom (not a mesh)
+  bool signed_distance = false;                     // inside a geom without a proxy
 };
 
 // Per-step figures (the last Step()).
@@ -151,7 +154,7 @@ class World {
   const std::vector<ContactPoint>& contacts() const { return contacts_; }
   // The penetration results of the last step (its start state); they are the
   // first penetrations().size() entries of contacts(), in the same order;
-  // contacts with primitive geoms follow.
+  // contacts with geoms (by signed distance) follow.
   const std::vector<PenetrationResult>& penetrations() const { return solver_.results(); }
   // The MuJoCo trees solved with the last step's deformables (RigidSystem,
   // coupled_step.h; empty with <solver rigid="explicit">), each by its root
@@ -169,8 +172,8 @@ class World {
   int MetricObject(int collision_object) const;
   // Exact interpenetration of the current state, method-independent: for
   // every point inside another object, its distance to that object's surface
-  // (closest feature on the surface triangles; signed distance for primitive
-  // geoms). Used to judge both depth methods by the same ruler.
+  // (closest feature on the surface triangles; signed distance for geoms
+  // without proxies). Used to judge both depth methods by the same ruler.
   std::vector<Interpenetration> MeasureInterpenetration();
   // Centre of mass (xipos) of a MuJoCo body, world frame; and whether the body
   // is welded to the world (never moves).
@@ -205,7 +208,7 @@ class World {
   void AddGeomContacts();
   void BuildCollisionObjects();
   // calls visit(deformable, vertex, geom, depth, direction out of the geom)
-  // for every deformable vertex inside a primitive geom without a proxy
+  // for every deformable vertex inside a geom without a proxy (geom_shape.h)
   void ForEachGeomPenetration(
       const std::function<void(int, int, int, double, const Eigen::Vector3d&)>& visit) const;
   // Before a step: where the reactions of the contacts with MuJoCo bodies,
@@ -244,6 +247,7 @@ class World {
   std::vector<int> attach_body_;           // per deformable: MuJoCo body of its pins, or -1
   std::vector<std::unique_ptr<Proxy>> proxies_;
   std::vector<char> geom_has_proxy_;
+  std::vector<std::pair<int, GeomShape>> geom_shapes_;  // (geom, its shape): geoms met by shape
   PenetrationSolver solver_;
   PenetrationSolver exact_solver_;  // closest-feature, for MeasureInterpenetration
   std::vector<CollisionObject> objects_;

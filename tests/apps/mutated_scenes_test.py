@@ -35,6 +35,7 @@ SCENES = [
     "models/scenes/block_and_box.xml",
     "models/scenes/paddle.xml",
     "models/scenes/gripper.xml",
+    "models/scenes/terrain.xml",
     "models/paper/cubes.xml",
     "models/paper/rigid.xml",
     "models/paper/mixed.xml",

@@ -1,0 +1,261 @@
+#include "mujoco_bridge/geom_shape.h"
+
+#include <mujoco/mujoco.h>
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "mesh/error.h"
+
+namespace tetcosim {
+namespace {
+
+// Faces of a convex hull closer than this (unit normals, and offsets over
+// the hull's size) are one plane.
+constexpr double kSamePlane = 1e-12;
+
+// The planes of the faces of mesh `mesh`'s convex hull, from MuJoCo's
+// graph of it (mesh_graph: numvert, numface, vert_edgeadr (numvert),
+// vert_globalid (numvert), edge_localid (numvert + 3 numface),
+// face_globalid (3 numface), the last indices into the mesh's vertices).
+void HullPlanes(const mjModel* m, int mesh, GeomShape& shape) {
+  const int* graph = m->mesh_graph + m->mesh_graphadr[mesh];
+  const int num_vertices = graph[0];
+  const int num_faces = graph[1];
+  const int* vertex_id = graph + 2 + num_vertices;
+  const int* face = graph + 2 + 3 * num_vertices + 3 * num_faces;
+  const float* vertices = m->mesh_vert + 3 * m->mesh_vertadr[mesh];
+  auto vertex = [&](int i) {
+    return Eigen::Vector3d(vertices[3 * i], vertices[3 * i + 1], vertices[3 * i + 2]);
+  };
+  // a point inside: the mean of the hull's vertices
+  Eigen::Vector3d inside = Eigen::Vector3d::Zero();
+  double radius = 0.0;
+  for (int k = 0; k < num_vertices; ++k) inside += vertex(vertex_id[k]);
+  inside /= std::max(1, num_vertices);
+  for (int k = 0; k < num_vertices; ++k) {
+    radius = std::max(radius, (vertex(vertex_id[k]) - inside).norm());
+  }
+  for (int f = 0; f < num_faces; ++f) {
+    const Eigen::Vector3d a = vertex(face[3 * f]);
+    Eigen::Vector3d n = (vertex(face[3 * f + 1]) - a).cross(vertex(face[3 * f + 2]) - a);
+    if (!(n.norm() > 0.0)) continue;  // (a degenerate face: its neighbours bound the hull)
+    n.normalize();
+    if (n.dot(inside - a) > 0.0) n = -n;  // (outward, whatever the winding)
+    const double offset = n.dot(a);
+    bool known = false;
+    for (size_t i = 0; i < shape.plane_normal.size() && !known; ++i) {
+      known = (shape.plane_normal[i] - n).norm() < kSamePlane &&
+              std::abs(shape.plane_offset[i] - offset) < kSamePlane * radius;
+    }
+    if (known) continue;
+    shape.plane_normal.push_back(n);
+    shape.plane_offset.push_back(offset);
+  }
+}
+
+bool MeshPenetration(const GeomShape& shape, const Eigen::Vector3d& p, double& depth,
+                     Eigen::Vector3d& direction) {
+  // inside a convex polyhedron, the nearest surface point lies on the
+  // nearest face plane: depth = -max_f (n_f . p - offset_f)
+  double highest = -std::numeric_limits<double>::infinity();
+  int nearest = -1;
+  for (size_t f = 0; f < shape.plane_normal.size(); ++f) {
+    const double height = shape.plane_normal[f].dot(p) - shape.plane_offset[f];
+    if (height >= 0.0) return false;
+    if (height > highest) {
+      highest = height;
+      nearest = static_cast<int>(f);
+    }
+  }
+  if (nearest < 0) return false;
+  depth = -highest;
+  direction = shape.plane_normal[nearest];
+  return true;
+}
+
+bool HeightFieldPenetration(const GeomShape& shape, const Eigen::Vector3d& p, double& depth,
+                            Eigen::Vector3d& direction) {
+  const double* size = shape.size;
+  if (!(std::abs(p.x()) <= size[0] && std::abs(p.y()) <= size[1] && p.z() >= -size[3])) {
+    return false;
+  }
+  // the cell over p and p's place in it, u along x (columns), v along y
+  // (rows), both 0 to 1
+  const double cell_x = 2.0 * size[0] / (shape.cols - 1);
+  const double cell_y = 2.0 * size[1] / (shape.rows - 1);
+  double u = (p.x() + size[0]) / cell_x;
+  double v = (p.y() + size[1]) / cell_y;
+  const int c = std::clamp(static_cast<int>(std::floor(u)), 0, shape.cols - 2);
+  const int r = std::clamp(static_cast<int>(std::floor(v)), 0, shape.rows - 2);
+  u -= c;
+  v -= r;
+  auto height = [&](int row, int col) { return size[2] * shape.elevation[row * shape.cols + col]; };
+  const double h00 = height(r, c), h01 = height(r, c + 1);
+  const double h10 = height(r + 1, c), h11 = height(r + 1, c + 1);
+  // MuJoCo splits a cell along its diagonal from (r, c) to (r + 1, c + 1):
+  // h = h00 + dh_du u + dh_dv v on the triangle p is over
+  double dh_du, dh_dv;
+  if (v >= u) {  // (r, c), (r + 1, c), (r + 1, c + 1)
+    dh_du = h11 - h10;
+    dh_dv = h10 - h00;
+  } else {  // (r, c), (r, c + 1), (r + 1, c + 1)
+    dh_du = h01 - h00;
+    dh_dv = h11 - h01;
+  }
+  const double h = h00 + dh_du * u + dh_dv * v;
+  if (!(p.z() < h)) return false;
+  // the distance to the triangle's plane, along its upward normal
+  direction = Eigen::Vector3d(-dh_du / cell_x, -dh_dv / cell_y, 1.0).normalized();
+  depth = (h - p.z()) * direction.z();
+  return true;
+}
+
+}  // namespace
+
+GeomShape MakeGeomShape(const mjModel* m, int geom, const std::string& where) {
+  GeomShape shape;
+  shape.type = m->geom_type[geom];
+  shape.size = m->geom_size + 3 * geom;
+  if (shape.type == mjGEOM_MESH) {
+    const int mesh = m->geom_dataid[geom];
+    if (mesh < 0 || m->mesh_graphadr[mesh] < 0) {
+      throw Error(where +
+                  ": its mesh has no convex hull, which deformables collide with "
+                  "as MuJoCo does; remove convexhull=\"false\" from <compiler>, or "
+                  "give the geom a <rigidtet>, or keep it off deformables "
+                  "(contype and conaffinity without bit 1)");
+    }
+    HullPlanes(m, mesh, shape);
+  } else if (shape.type == mjGEOM_HFIELD) {
+    const int field = m->geom_dataid[geom];
+    shape.size = m->hfield_size + 4 * field;
+    shape.rows = m->hfield_nrow[field];
+    shape.cols = m->hfield_ncol[field];
+    shape.elevation = m->hfield_data + m->hfield_adr[field];
+  }
+  return shape;
+}
+
+void NearestEllipsoidPoint(const Eigen::Vector3d& radii, const Eigen::Vector3d& p,
+                           Eigen::Vector3d& nearest, Eigen::Vector3d& normal) {
+  // The nearest point x to p on the surface sum x_i^2 / a_i^2 = 1 has
+  // x - p along the normal x_i / a_i^2: x_i = a_i^2 p_i / (a_i^2 + t), t
+  // the root of g(t) = sum (a_i p_i / (a_i^2 + t))^2 = 1 with a_i^2 + t > 0
+  // for every i (x on p's side of each plane of symmetry); for p inside,
+  // t in (-a_min^2, 0], where g falls from infinity (if p_i != 0 on an axis
+  // with a_i = a_min) to g(0) <= 1. In s = a_min^2 + t, which keeps its
+  // precision near 0: s in (0, a_min^2], found by bisection. If p_i = 0 on
+  // every smallest axis and g stays <= 1, the nearest points leave p's
+  // plane: s = 0 and x on the first smallest axis from the surface's
+  // equation (Eberly 2013, the degenerate cases).
+  const Eigen::Vector3d q = p.cwiseAbs();  // (the positive octant; signs restored below)
+  const double a_min = radii.minCoeff();
+  Eigen::Vector3d shift;  // a_i^2 - a_min^2
+  for (int i = 0; i < 3; ++i) shift[i] = radii[i] * radii[i] - a_min * a_min;
+  auto g = [&](double s) {
+    double sum = 0.0;
+    for (int i = 0; i < 3; ++i) {
+      if (q[i] == 0.0) continue;
+      const double x = radii[i] * q[i] / (shift[i] + s);
+      sum += x * x;
+    }
+    return sum;
+  };
+  bool on_smallest = false;  // p_i != 0 on an axis with a_i = a_min
+  for (int i = 0; i < 3; ++i) on_smallest |= shift[i] == 0.0 && q[i] > 0.0;
+  Eigen::Vector3d x;
+  if (!on_smallest && g(0.0) <= 1.0) {
+    int first = -1;
+    double sum = 0.0;
+    for (int i = 0; i < 3; ++i) {
+      if (shift[i] == 0.0) {
+        x[i] = 0.0;
+        if (first < 0) first = i;
+      } else {
+        x[i] = radii[i] * radii[i] * q[i] / shift[i];
+        sum += (x[i] / radii[i]) * (x[i] / radii[i]);
+      }
+    }
+    x[first] = radii[first] * std::sqrt(std::max(0.0, 1.0 - sum));
+  } else {
+    double lo = 0.0, hi = a_min * a_min;  // g(lo) > 1 >= g(hi)
+    for (int iteration = 0; iteration < 2200; ++iteration) {
+      const double mid = 0.5 * (lo + hi);
+      if (mid <= lo || mid >= hi) break;
+      (g(mid) > 1.0 ? lo : hi) = mid;
+    }
+    for (int i = 0; i < 3; ++i) x[i] = radii[i] * radii[i] * q[i] / (shift[i] + hi);
+  }
+  for (int i = 0; i < 3; ++i) {
+    if (p[i] < 0.0) x[i] = -x[i];
+  }
+  nearest = x;
+  normal = x.cwiseQuotient(radii.cwiseProduct(radii)).normalized();
+}
+
+bool GeomPenetration(const GeomShape& shape, const Eigen::Vector3d& p, double& depth,
+                     Eigen::Vector3d& direction) {
+  const double* size = shape.size;
+  switch (shape.type) {
+    case mjGEOM_PLANE:
+      depth = -p.z();
+      direction = Eigen::Vector3d::UnitZ();
+      return depth > 0.0;
+    case mjGEOM_SPHERE: {
+      const double r = p.norm();
+      depth = size[0] - r;
+      direction = r > 0.0 ? Eigen::Vector3d(p / r) : Eigen::Vector3d::UnitZ();
+      return depth > 0.0;
+    }
+    case mjGEOM_CAPSULE: {
+      const Eigen::Vector3d axis_point(0.0, 0.0, std::clamp(p.z(), -size[1], size[1]));
+      const Eigen::Vector3d offset = p - axis_point;
+      const double r = offset.norm();
+      depth = size[0] - r;
+      direction = r > 0.0 ? Eigen::Vector3d(offset / r) : Eigen::Vector3d::UnitX();
+      return depth > 0.0;
+    }
+    case mjGEOM_ELLIPSOID: {
+      const Eigen::Vector3d radii(size[0], size[1], size[2]);
+      if (!(p.cwiseQuotient(radii).squaredNorm() < 1.0)) return false;
+      Eigen::Vector3d nearest;
+      NearestEllipsoidPoint(radii, p, nearest, direction);
+      depth = (nearest - p).norm();
+      return depth > 0.0;
+    }
+    case mjGEOM_BOX: {
+      // inside: the nearest face
+      const Eigen::Vector3d q = p.cwiseAbs() - Eigen::Vector3d(size[0], size[1], size[2]);
+      int axis;
+      depth = -q.maxCoeff(&axis);
+      direction = Eigen::Vector3d::Unit(axis) * (p[axis] >= 0.0 ? 1.0 : -1.0);
+      return depth > 0.0;
+    }
+    case mjGEOM_CYLINDER: {
+      // inside: the nearer of the side and the cap
+      const double radial = std::hypot(p.x(), p.y());
+      const double side = size[0] - radial;
+      const double cap = size[1] - std::abs(p.z());
+      if (side < cap) {
+        depth = side;
+        direction = radial > 0.0 ? Eigen::Vector3d(p.x() / radial, p.y() / radial, 0.0)
+                                 : Eigen::Vector3d::UnitX();
+      } else {
+        depth = cap;
+        direction = Eigen::Vector3d(0.0, 0.0, p.z() >= 0.0 ? 1.0 : -1.0);
+      }
+      return depth > 0.0;
+    }
+    case mjGEOM_MESH:
+      return MeshPenetration(shape, p, depth, direction);
+    case mjGEOM_HFIELD:
+      return HeightFieldPenetration(shape, p, depth, direction);
+    default:
+      return false;
+  }
+}
+
+}  // namespace tetcosim

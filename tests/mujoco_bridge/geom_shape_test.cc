@@ -1,0 +1,372 @@
+#include "mujoco_bridge/geom_shape.h"
+
+#include <gtest/gtest.h>
+#include <mujoco/mujoco.h>
+
+#include <Eigen/Geometry>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <memory>
+#include <random>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "mesh/error.h"
+#include "mujoco_bridge/world.h"
+#include "tests/mujoco_bridge/temp_dir.h"
+
+namespace tetcosim {
+namespace {
+
+using MjRotation = Eigen::Matrix<double, 3, 3, Eigen::RowMajor>;
+
+// a compiled model and its data after mj_forward
+struct Compiled {
+  mjModel* m = nullptr;
+  mjData* d = nullptr;
+  Compiled() = default;
+  Compiled(const Compiled&) = delete;
+  Compiled& operator=(const Compiled&) = delete;
+  ~Compiled() {
+    if (d) mj_deleteData(d);
+    if (m) mj_deleteModel(m);
+  }
+  Eigen::Vector3d ToWorld(int geom, const Eigen::Vector3d& p_G) const {
+    return Eigen::Map<const Eigen::Vector3d>(d->geom_xpos + 3 * geom) + Rotation(geom) * p_G;
+  }
+  Eigen::Matrix3d Rotation(int geom) const {
+    return Eigen::Map<const MjRotation>(d->geom_xmat + 9 * geom);
+  }
+  // MuJoCo's distance from p_G along the unit u_G (both geom frame) to the
+  // surface of `geom`, the only geom of its group; -1 where the ray misses
+  double Ray(int geom, const Eigen::Vector3d& p_G, const Eigen::Vector3d& u_G) const {
+    mjtByte groups[mjNGROUP] = {};
+    groups[m->geom_group[geom]] = 1;
+    const Eigen::Vector3d p_W = ToWorld(geom, p_G);
+    const Eigen::Vector3d u_W = Rotation(geom) * u_G;
+    int hit = -1;
+    return mj_ray(m, d, p_W.data(), u_W.data(), groups, 1, -1, &hit);
+  }
+};
+
+std::unique_ptr<Compiled> Compile(const TempDir& dir, const std::string& xml) {
+  const std::string path = dir.Write("model.xml", xml);
+  char error[1000] = "";
+  auto compiled = std::make_unique<Compiled>();
+  compiled->m = mj_loadXML(path.c_str(), nullptr, error, sizeof(error));
+  if (!compiled->m) {
+    ADD_FAILURE() << error;
+    return nullptr;
+  }
+  compiled->d = mj_makeData(compiled->m);
+  mj_forward(compiled->m, compiled->d);
+  return compiled;
+}
+
+Eigen::Vector3d RandomDirection(std::mt19937& rng) {
+  std::normal_distribution<double> normal;
+  return Eigen::Vector3d(normal(rng), normal(rng), normal(rng)).normalized();
+}
+
+// Every convex geom type, each alone in its group, placed off the origin
+// and turned; the mesh is 40 random points on an ellipsoid (MuJoCo collides
+// it as their convex hull, and its ray meets the hull's faces).
+std::string ConvexGeoms() {
+  std::mt19937 rng(7);
+  std::ostringstream vertices;
+  for (int k = 0; k < 40; ++k) {
+    const Eigen::Vector3d u = RandomDirection(rng);
+    vertices << 0.3 * u.x() << " " << 0.2 * u.y() << " " << 0.15 * u.z() << "  ";
+  }
+  return R"(<mujoco>
+  <asset><mesh name="rock" vertex=")" +
+         vertices.str() + R"("/></asset>
+  <worldbody>
+    <geom name="sphere" group="0" type="sphere" size="0.2" pos="1 2 3" euler="10 20 30"/>
+    <geom name="box" group="1" type="box" size="0.3 0.2 0.1" pos="-1 0.5 0" euler="40 -10 5"/>
+    <geom name="capsule" group="2" type="capsule" size="0.1 0.2" pos="0 -1 1" euler="0 90 15"/>
+    <geom name="cylinder" group="3" type="cylinder" size="0.15 0.1" pos="2 0 -1" euler="30 0 60"/>
+    <geom name="ellipsoid" group="4" type="ellipsoid" size="0.3 0.2 0.1" pos="0 0 2" euler="5 15 25"/>
+    <geom name="rock" group="5" type="mesh" mesh="rock" pos="-2 -1 0.5" euler="70 10 -20"/>
+  </worldbody>
+</mujoco>)";
+}
+
+// Oracles, MuJoCo's rays (mj_ray) from the point: inside a convex geom every
+// ray from p meets its surface, and none nearer than the depth; the one
+// along the direction meets it at the depth. Outside one, a separating
+// plane turns half of all rays away: one of 32 misses but with odds 2^-32.
+TEST(GeomShape, DepthIsTheNearestWayOutOfEveryConvexGeom) {
+  TempDir dir("tetcosim_geom_shape");
+  std::unique_ptr<Compiled> compiled = Compile(dir, ConvexGeoms());
+  ASSERT_NE(compiled, nullptr);
+  const mjModel* m = compiled->m;
+  std::mt19937 rng(11);
+  for (int g = 0; g < m->ngeom; ++g) {
+    SCOPED_TRACE(mj_id2name(m, mjOBJ_GEOM, g));
+    const GeomShape shape = MakeGeomShape(m, g, "geom");
+    const double bound = m->geom_rbound[g];
+    ASSERT_GT(bound, 0.0);
+    const double tolerance = 1e-9 * bound;
+    std::uniform_real_distribution<double> coordinate(-bound, bound);
+    std::vector<Eigen::Vector3d> directions(32);
+    for (Eigen::Vector3d& u : directions) u = RandomDirection(rng);
+    int inside = 0, outside = 0;
+    while (inside < 300 || outside < 100) {
+      const Eigen::Vector3d p(coordinate(rng), coordinate(rng), coordinate(rng));
+      double depth = -1.0;
+      Eigen::Vector3d direction = Eigen::Vector3d::Zero();
+      if (GeomPenetration(shape, p, depth, direction)) {
+        ++inside;
+        ASSERT_GT(depth, 0.0);
+        ASSERT_NEAR(direction.norm(), 1.0, 1e-12);
+        ASSERT_NEAR(compiled->Ray(g, p, direction), depth, tolerance)
+            << "at " << p.transpose() << ", the way out " << direction.transpose();
+        for (const Eigen::Vector3d& u : directions) {
+          const double distance = compiled->Ray(g, p, u);
+          ASSERT_GE(distance, depth - tolerance)
+              << "at " << p.transpose() << " along " << u.transpose() << ": a nearer surface";
+        }
+      } else {
+        ++outside;
+        bool missed = false;
+        for (const Eigen::Vector3d& u : directions) missed |= compiled->Ray(g, p, u) < 0.0;
+        ASSERT_TRUE(missed) << p.transpose() << " is inside, every ray meets the geom";
+      }
+    }
+  }
+}
+
+// The hull's planes support the mesh: each touches it (its farthest
+// vertex on the plane) and has every vertex on its inner side.
+TEST(GeomShape, HullPlanesSupportTheMesh) {
+  TempDir dir("tetcosim_geom_shape");
+  std::unique_ptr<Compiled> compiled = Compile(dir, ConvexGeoms());
+  ASSERT_NE(compiled, nullptr);
+  const mjModel* m = compiled->m;
+  const int geom = mj_name2id(m, mjOBJ_GEOM, "rock");
+  const GeomShape shape = MakeGeomShape(m, geom, "rock");
+  const int mesh = m->geom_dataid[geom];
+  ASSERT_GE(shape.plane_normal.size(), 4u);
+  for (size_t f = 0; f < shape.plane_normal.size(); ++f) {
+    double farthest = -1.0;
+    for (int v = 0; v < m->mesh_vertnum[mesh]; ++v) {
+      const float* x = m->mesh_vert + 3 * (m->mesh_vertadr[mesh] + v);
+      const double height =
+          shape.plane_normal[f].dot(Eigen::Vector3d(x[0], x[1], x[2])) - shape.plane_offset[f];
+      farthest = v == 0 ? height : std::max(farthest, height);
+    }
+    EXPECT_NEAR(farthest, 0.0, 1e-12) << "plane " << f;
+  }
+}
+
+// Where the nearest point is not unique or the bisection's bracket is
+// degenerate (the centre, the planes and axes of symmetry, spheroids and a
+// sphere), the point found lies on the surface, along the normal from p,
+// and no point of a dense sampling of the surface is nearer.
+TEST(GeomShape, EllipsoidNearestPointOnItsPlanesOfSymmetry) {
+  const Eigen::Vector3d shapes[] = {
+      {0.3, 0.2, 0.1}, {0.2, 0.2, 0.1}, {0.3, 0.1, 0.1}, {0.1, 0.2, 0.3}, {0.2, 0.2, 0.2}};
+  for (const Eigen::Vector3d& radii : shapes) {
+    SCOPED_TRACE("radii " + std::to_string(radii.x()) + " " + std::to_string(radii.y()) + " " +
+                 std::to_string(radii.z()));
+    std::vector<Eigen::Vector3d> surface;
+    constexpr int kLongitudes = 720, kLatitudes = 360;
+    for (int i = 0; i < kLongitudes; ++i) {
+      for (int j = 0; j <= kLatitudes; ++j) {
+        const double phi = 2.0 * M_PI * i / kLongitudes, theta = M_PI * j / kLatitudes;
+        surface.emplace_back(radii.x() * std::sin(theta) * std::cos(phi),
+                             radii.y() * std::sin(theta) * std::sin(phi),
+                             radii.z() * std::cos(theta));
+      }
+    }
+    std::vector<Eigen::Vector3d> points = {Eigen::Vector3d::Zero()};
+    for (int axis = 0; axis < 3; ++axis) {
+      for (double f : {0.3, -0.6, 0.95}) {
+        points.push_back(f * radii[axis] * Eigen::Vector3d::Unit(axis));
+        Eigen::Vector3d in_plane = 0.4 * f * radii;
+        in_plane[axis] = 0.0;
+        points.push_back(in_plane);
+      }
+    }
+    points.push_back(Eigen::Vector3d(0.05, -0.03, 0.02).cwiseProduct(radii) * 10.0);
+    for (const Eigen::Vector3d& p : points) {
+      ASSERT_LT(p.cwiseQuotient(radii).squaredNorm(), 1.0);
+      Eigen::Vector3d nearest, normal;
+      NearestEllipsoidPoint(radii, p, nearest, normal);
+      EXPECT_NEAR(nearest.cwiseQuotient(radii).squaredNorm(), 1.0, 1e-12) << p.transpose();
+      EXPECT_NEAR(normal.norm(), 1.0, 1e-12);
+      const Eigen::Vector3d gradient = nearest.cwiseQuotient(radii.cwiseProduct(radii));
+      EXPECT_NEAR(normal.dot(gradient.normalized()), 1.0, 1e-12) << "the outward normal there";
+      const double depth = (nearest - p).norm();
+      if (depth > 0.0) {
+        EXPECT_NEAR((nearest - p).normalized().dot(normal), 1.0, 1e-10)
+            << "from p along the normal, at " << p.transpose();
+      }
+      double closest = INFINITY;
+      for (const Eigen::Vector3d& s : surface) closest = std::min(closest, (s - p).norm());
+      EXPECT_GE(closest, depth - 1e-12) << "a nearer surface point, at " << p.transpose();
+      EXPECT_LE(closest, depth + 2.0 * M_PI * radii.maxCoeff() / kLatitudes)
+          << "(the sampling's spacing) at " << p.transpose();
+    }
+  }
+}
+
+// A height field of random elevations (MuJoCo's binary format: rows, cols,
+// then the elevations row by row), placed off the origin and turned.
+// Oracles: MuJoCo's ray from above gives the surface's height over (x, y);
+// central differences of it across a triangle give its normal.
+TEST(GeomShape, HeightFieldIsMuJoCosSurfaceAsRaysSeeIt) {
+  TempDir dir("tetcosim_geom_shape");
+  constexpr std::int32_t kRows = 7, kCols = 9;
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> unit(0.0f, 1.0f);
+  std::string bytes(reinterpret_cast<const char*>(&kRows), 4);
+  bytes.append(reinterpret_cast<const char*>(&kCols), 4);
+  for (int k = 0; k < kRows * kCols; ++k) {
+    const float value = unit(rng);
+    bytes.append(reinterpret_cast<const char*>(&value), 4);
+  }
+  const std::string field = dir.Write("field.bin", bytes);
+  std::unique_ptr<Compiled> compiled = Compile(dir, R"(<mujoco>
+  <asset><hfield name="field" file=")" + field + R"(" size="0.4 0.3 0.1 0.05"/></asset>
+  <worldbody><geom type="hfield" hfield="field" pos="1 -2 0.5" euler="10 -5 40"/></worldbody>
+</mujoco>)");
+  ASSERT_NE(compiled, nullptr);
+  const GeomShape shape = MakeGeomShape(compiled->m, 0, "field");
+  ASSERT_EQ(shape.rows, kRows);
+  ASSERT_EQ(shape.cols, kCols);
+  const Eigen::Vector3d down = -Eigen::Vector3d::UnitZ();
+  auto surface = [&](double x, double y) {  // (MuJoCo's)
+    return 1.0 - compiled->Ray(0, Eigen::Vector3d(x, y, 1.0), down);
+  };
+  const double cell_x = 0.8 / (kCols - 1), cell_y = 0.6 / (kRows - 1);
+  std::uniform_real_distribution<double> x_of(-0.4, 0.4), y_of(-0.3, 0.3), z_of(-0.08, 0.12);
+  int inside = 0, outside = 0, normals = 0;
+  while (inside < 300 || outside < 300) {
+    const Eigen::Vector3d p(x_of(rng), y_of(rng), z_of(rng));
+    const double h = surface(p.x(), p.y());
+    double depth = -1.0;
+    Eigen::Vector3d direction;
+    const bool in = GeomPenetration(shape, p, depth, direction);
+    if (p.z() < -0.05 || p.z() > h + 1e-12) {
+      ASSERT_FALSE(in) << p.transpose() << ": below the base or above the surface (" << h << ")";
+      ++outside;
+      continue;
+    }
+    if (p.z() > h - 1e-12) continue;  // (on the surface, to rounding)
+    ASSERT_TRUE(in) << p.transpose() << " is below the surface (" << h << ")";
+    ++inside;
+    ASSERT_GT(direction.z(), 0.0);
+    ASSERT_NEAR(p.z() + depth / direction.z(), h, 1e-9) << "the surface over " << p.transpose();
+    // the normal, where p is well inside its triangle
+    double u = (p.x() + 0.4) / cell_x, v = (p.y() + 0.3) / cell_y;
+    u -= std::floor(u);
+    v -= std::floor(v);
+    const double margin = 0.02;
+    if (u < margin || u > 1 - margin || v < margin || v > 1 - margin || std::abs(u - v) < margin) {
+      continue;
+    }
+    const double e = 1e-3 * cell_x;
+    const double dh_dx = (surface(p.x() + e, p.y()) - surface(p.x() - e, p.y())) / (2 * e);
+    const double dh_dy = (surface(p.x(), p.y() + e) - surface(p.x(), p.y() - e)) / (2 * e);
+    const Eigen::Vector3d normal = Eigen::Vector3d(-dh_dx, -dh_dy, 1.0).normalized();
+    ASSERT_NEAR(direction.dot(normal), 1.0, 1e-10) << "at " << p.transpose();
+    ++normals;
+  }
+  EXPECT_GT(normals, 100);
+  // beside the grid: outside
+  double depth;
+  Eigen::Vector3d direction;
+  EXPECT_FALSE(GeomPenetration(shape, Eigen::Vector3d(0.41, 0.0, -0.01), depth, direction));
+  EXPECT_FALSE(GeomPenetration(shape, Eigen::Vector3d(0.0, -0.31, -0.01), depth, direction));
+}
+
+// Three soft cubes dropped, one on the floor, one on a box, one on a
+// ball, in two scenes that differ only in how those are given: a plane, a
+// box and a sphere, or a flat height field, a mesh of the box's corners and
+// an ellipsoid of equal radii. For 2 s the cubes move alike in both (the
+// shapes are the same), and come to rest on what they fell on.
+TEST(GeomShape, CubesMeetMeshesHeightFieldsAndEllipsoidsAsThePrimitivesTheyEqual) {
+  TempDir dir("tetcosim_geom_shape");
+  auto scene = [&](const std::string& floor, const std::string& box, const std::string& ball) {
+    return dir.Write("scene.xml", R"(<mujoco>
+  <option timestep="0.002"/>
+  <asset>
+    <hfield name="flat" nrow="2" ncol="2" size="1 1 0.1 0.1"/>
+    <mesh name="box" vertex="-0.1 -0.1 -0.05  0.1 -0.1 -0.05  -0.1 0.1 -0.05  0.1 0.1 -0.05
+                             -0.1 -0.1 0.05  0.1 -0.1 0.05  -0.1 0.1 0.05  0.1 0.1 0.05"/>
+  </asset>
+  <worldbody>
+    )" + floor + "\n    " + box + "\n    " +
+                                      ball + R"(
+  </worldbody>
+  <deformable>
+    <contact friction="0.5"/>
+    <tetbody name="on_floor" shape="box" size="0.03 0.03 0.03" resolution="3" pos="0 0.5 0.1"
+             euler="5 10 0" young="1e5" damping="1 0"/>
+    <tetbody name="on_box" shape="box" size="0.03 0.03 0.03" resolution="3" pos="0.5 0 0.2"
+             euler="-5 0 10" young="1e5" damping="1 0"/>
+    <tetbody name="on_ball" shape="box" size="0.03 0.03 0.03" resolution="3" pos="-0.5 0 0.26"
+             young="1e5" damping="1 0"/>
+  </deformable>
+</mujoco>)");
+  };
+  std::unique_ptr<World> primitives =
+      World::Load(scene(R"(<geom type="plane" size="1 1 0.1"/>)",
+                        R"(<geom type="box" size="0.1 0.1 0.05" pos="0.5 0 0.05"/>)",
+                        R"(<geom type="sphere" size="0.1" pos="-0.5 0 0.1"/>)"));
+  std::unique_ptr<World> others =
+      World::Load(scene(R"(<geom type="hfield" hfield="flat"/>)",
+                        R"(<geom type="mesh" mesh="box" pos="0.5 0 0.05"/>)",
+                        R"(<geom type="ellipsoid" size="0.1 0.1 0.1" pos="-0.5 0 0.1"/>)"));
+  for (int step = 0; step < 1000; ++step) {
+    primitives->Step();
+    others->Step();
+    ASSERT_EQ(primitives->metrics().status, StepStatus::kOk) << primitives->metrics().message;
+    ASSERT_EQ(others->metrics().status, StepStatus::kOk) << others->metrics().message;
+  }
+  for (int i = 0; i < 3; ++i) {
+    SCOPED_TRACE(i);
+    const Eigen::Vector3d x = primitives->deformable(i).CenterOfMass();
+    // (to 1e-7 m: MuJoCo keeps a mesh's vertices in single precision, its
+    // box's 0.1 m as 0.100000001490116 m)
+    EXPECT_LT((others->deformable(i).CenterOfMass() - x).norm(), 1e-7) << x.transpose();
+  }
+  // at rest where they fell: on the floor, on the box's top, on the ball's
+  EXPECT_NEAR(others->deformable(0).CenterOfMass().z(), 0.03, 1e-3);
+  EXPECT_NEAR(others->deformable(1).CenterOfMass().z(), 0.1 + 0.03, 1e-3);
+  EXPECT_NEAR(others->deformable(2).CenterOfMass().z(), 0.2 + 0.03, 2e-3);
+  EXPECT_LT(others->DeformableKineticEnergy(), 1e-6);
+}
+
+TEST(GeomShape, MeshWithoutAHullTouchingDeformablesIsAClearError) {
+  TempDir dir("tetcosim_geom_shape");
+  auto scene = [&](const std::string& contact) {
+    return dir.Write("scene.xml", R"(<mujoco>
+  <compiler convexhull="false"/>
+  <asset><mesh name="wedge" vertex="0 0 0  1 0 0  0 1 0  0 0 1"
+                                  face="0 2 1  0 1 3  0 3 2  1 2 3"/></asset>
+  <worldbody><geom name="rock" type="mesh" mesh="wedge" )" +
+                                      contact + R"(/></worldbody>
+  <deformable><tetbody name="ball" shape="sphere" size="0.1" pos="0 0 1"/></deformable>
+</mujoco>)");
+  };
+  std::string message;
+  try {
+    World::Load(scene(""));
+  } catch (const Error& e) {
+    message = e.what();
+  }
+  ASSERT_FALSE(message.empty()) << "loaded";
+  EXPECT_NE(message.find("scene.xml: geom 'rock': its mesh has no convex hull"), std::string::npos)
+      << message;
+  EXPECT_NE(message.find("convexhull"), std::string::npos) << message;
+  // kept off deformables, it loads
+  EXPECT_NO_THROW(World::Load(scene("contype=\"2\" conaffinity=\"2\"")));
+}
+
+}  // namespace
+}  // namespace tetcosim
