@@ -119,25 +119,27 @@ void DeformableBody::Pin(int vertex) {
   auto it = std::lower_bound(pinned_.begin(), pinned_.end(), vertex);
   size_t index = static_cast<size_t>(it - pinned_.begin());
   if (it != pinned_.end() && *it == vertex) {
-    pin_kinematic_[index] = 0;
+    pin_frame_[index] = -1;
     pin_target_[index] = x_.row(vertex).transpose();
     return;
   }
   pinned_.insert(it, vertex);
-  pin_kinematic_.insert(pin_kinematic_.begin() + static_cast<long>(index), 0);
+  pin_frame_.insert(pin_frame_.begin() + static_cast<long>(index), -1);
   pin_target_.insert(pin_target_.begin() + static_cast<long>(index), x_.row(vertex).transpose());
   pin_forces_.assign(pinned_.size(), Eigen::Vector3d::Zero());
 }
 
-void DeformableBody::PinToFrame(const std::vector<int>& vertices, const Eigen::Isometry3d& X_WT) {
-  X_WT_ = X_WT;
+int DeformableBody::PinToFrame(const std::vector<int>& vertices, const Eigen::Isometry3d& X_WT) {
+  const int frame = static_cast<int>(frames_.size());
+  frames_.push_back(X_WT);
   for (int v : vertices) {
     Pin(v);
     auto index =
         static_cast<size_t>(std::lower_bound(pinned_.begin(), pinned_.end(), v) - pinned_.begin());
-    pin_kinematic_[index] = 1;
+    pin_frame_[index] = frame;
     pin_target_[index] = X_WT.inverse() * x_.row(v).transpose();
   }
+  return frame;
 }
 
 // A = (1 + dt alpha) M + (dt beta + dt^2) K
@@ -413,8 +415,7 @@ void DeformableBody::ApplyPins(const StepSettings& settings) {
   }
   for (size_t i = 0; i < pinned_.size(); ++i) {
     const int p = pinned_[i];
-    Eigen::Vector3d target =
-        pin_kinematic_[i] ? Eigen::Vector3d(X_WT_ * pin_target_[i]) : pin_target_[i];
+    const Eigen::Vector3d target = PinTarget(i);
     Eigen::Vector3d velocity = (target - x_.row(p).transpose()) / settings.dt;
     // move column p to the right-hand side in every other row
     for (int k = row_start[3 * p]; k < row_start[3 * p + 1]; k += 3) {
@@ -543,10 +544,13 @@ void DeformableBody::PrepareStep(const StepSettings& settings) {
   Assemble(settings, matrix);
 }
 
+Eigen::Vector3d DeformableBody::PinTarget(size_t i) const {
+  const int frame = pin_frame_[i];
+  return frame >= 0 ? Eigen::Vector3d(frames_[frame] * pin_target_[i]) : pin_target_[i];
+}
+
 Eigen::Vector3d DeformableBody::PinVelocity(size_t i, double dt) const {
-  Eigen::Vector3d target =
-      pin_kinematic_[i] ? Eigen::Vector3d(X_WT_ * pin_target_[i]) : pin_target_[i];
-  return (target - x_.row(pinned_[i]).transpose()) / dt;
+  return (PinTarget(i) - x_.row(pinned_[i]).transpose()) / dt;
 }
 
 StepReport DeformableBody::FinishStep(const Eigen::VectorXd& v_new, const Eigen::VectorXd& residual,

@@ -117,12 +117,16 @@ class DeformableBody {
   Positions& applied_forces() { return applied_; }
 
   // Pins: vertex v held at its current position, or (kinematic) following
-  // X_WT * p_T where p_T is its position in the frame T given by X_WT now.
+  // X_WT * p_T where p_T is its position in a frame T given by X_WT now.
+  // PinToFrame adds the frame and returns its index (0, 1, ...); a vertex
+  // pinned again is held by its last pin only.
   void Pin(int vertex);
-  void PinToFrame(const std::vector<int>& vertices, const Eigen::Isometry3d& X_WT);
-  // Moves the kinematic frame for the next step.
-  void SetPinFrame(const Eigen::Isometry3d& X_WT) { X_WT_ = X_WT; }
+  int PinToFrame(const std::vector<int>& vertices, const Eigen::Isometry3d& X_WT);
+  // Moves kinematic frame `frame` for the next step.
+  void SetPinFrame(int frame, const Eigen::Isometry3d& X_WT) { frames_[frame] = X_WT; }
   const std::vector<int>& pinned_vertices() const { return pinned_; }
+  // The frame of pin i (of pinned_vertices()), or -1 for a fixed pin.
+  int pin_frame(size_t i) const { return pin_frame_[i]; }
   // Force the pins applied to each pinned vertex in the last step (N, world).
   const std::vector<Eigen::Vector3d>& pin_forces() const { return pin_forces_; }
 
@@ -157,6 +161,8 @@ class DeformableBody {
   void MultiplyMass(const double* x, double* y) const;
   // The 3 x 3 diagonal block of A for vertex v (for preconditioners).
   const Eigen::Matrix3d& system_diagonal_block(int v) const { return diagonal_blocks_[v]; }
+  // Where pinned vertex pinned_vertices()[i] is held now (world frame).
+  Eigen::Vector3d PinTarget(size_t i) const;
   // Velocity that takes pinned vertex pinned_vertices()[i] to its target.
   Eigen::Vector3d PinVelocity(size_t i, double dt) const;
   // `iterations`: of the solve that gave v_new (SystemProduct::kAuto).
@@ -197,9 +203,9 @@ class DeformableBody {
   std::vector<Eigen::Quaterniond> rotations_;
 
   std::vector<int> pinned_;                  // ascending
-  std::vector<char> pin_kinematic_;          // per pin
+  std::vector<int> pin_frame_;               // per pin: its frame, or -1 (fixed)
   std::vector<Eigen::Vector3d> pin_target_;  // fixed pins: world; kinematic: in frame T
-  Eigen::Isometry3d X_WT_ = Eigen::Isometry3d::Identity();
+  std::vector<Eigen::Isometry3d> frames_;    // X_WT of each kinematic frame
   std::vector<Eigen::Vector3d> pin_forces_;
 
   // the linear system

@@ -42,6 +42,8 @@ void HullPlanes(const mjModel* m, int mesh, GeomShape& shape) {
     const Eigen::Vector3d a = vertex(face[3 * f]);
     Eigen::Vector3d n = (vertex(face[3 * f + 1]) - a).cross(vertex(face[3 * f + 2]) - a);
     if (!(n.norm() > 0.0)) continue;  // (a degenerate face: its neighbours bound the hull)
+    // (the cone from the inside point: |n . (a - inside)| / 6)
+    shape.hull_volume += std::abs(n.dot(a - inside)) / 6.0;
     n.normalize();
     if (n.dot(inside - a) > 0.0) n = -n;  // (outward, whatever the winding)
     const double offset = n.dot(a);
@@ -129,6 +131,18 @@ GeomShape MakeGeomShape(const mjModel* m, int geom, const std::string& where) {
                   "(contype and conaffinity without bit 1)");
     }
     HullPlanes(m, mesh, shape);
+    // the mesh's own volume, sum of a . (b x c) / 6 over its faces (either
+    // winding, if the same throughout)
+    const float* vertices = m->mesh_vert + 3 * m->mesh_vertadr[mesh];
+    const int* faces = m->mesh_face + 3 * m->mesh_faceadr[mesh];
+    auto vertex = [&](int i) {
+      return Eigen::Vector3d(vertices[3 * i], vertices[3 * i + 1], vertices[3 * i + 2]);
+    };
+    double volume = 0.0;
+    for (int f = 0; f < m->mesh_facenum[mesh]; ++f) {
+      volume += vertex(faces[3 * f]).dot(vertex(faces[3 * f + 1]).cross(vertex(faces[3 * f + 2])));
+    }
+    shape.mesh_volume = std::min(std::abs(volume) / 6.0, shape.hull_volume);
   } else if (shape.type == mjGEOM_HFIELD) {
     const int field = m->geom_dataid[geom];
     shape.size = m->hfield_size + 4 * field;

@@ -34,6 +34,8 @@ struct GeomShape {
   // outward; faces that lie in one plane given once)
   std::vector<Eigen::Vector3d> plane_normal;  // (#planes)
   std::vector<double> plane_offset;           // (#planes, metres)
+  double hull_volume = 0.0;                   // m^3
+  double mesh_volume = 0.0;  // m^3: what its faces enclose (if they close it), at most the hull's
 
   // height field: elevation[r * cols + c] (0 to 1, times size[2] in
   // metres) at grid point x = -size[0] + 2 size[0] c / (cols - 1),

@@ -38,6 +38,10 @@ using MjJacobian = Eigen::Matrix<double, 3, Eigen::Dynamic, Eigen::RowMajor>;
 constexpr double kBytesPerDeformableTet = 1600.0;
 constexpr double kBytesPerProxyTet = 600.0;
 
+// A mesh geom whose convex hull holds more than this times the mesh's own
+// volume is warned of: deformables meet its hull.
+constexpr double kConvexHullMargin = 1.02;
+
 // The memory the system can still give (MemAvailable of /proc/meminfo, in
 // bytes), or 0 if it cannot tell (then nothing is checked).
 double AvailableMemory() {
@@ -404,7 +408,7 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
     world->friction_.push_back(
         spec.contact.friction.value_or(scene_contact.friction.value_or(0.5)));
     world->damping_.push_back(spec.contact.damping.value_or(scene_contact.damping.value_or(0.5)));
-    world->attach_body_.push_back(-1);
+    world->attach_bodies_.emplace_back();
     skins += SkinXml(*body, spec.rgba, "tetcosim_" + spec.name);
     world->bodies_.push_back(std::move(body));
   }
@@ -519,11 +523,6 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
               "<attach>: no MuJoCo body named '" + spec.body + "'; the scene has " +
                   NamesOf(m, mjOBJ_BODY));
     }
-    if (world->attach_body_[index] >= 0 && world->attach_body_[index] != body) {
-      ThrowAt(scene_path, spec.line,
-              "<attach>: tetbody '" + spec.tetbody +
-                  "' is attached to another body already; one body per tetbody");
-    }
     DeformableBody& deformable = *world->bodies_[index];
     std::vector<int> vertices;
     for (int v : spec.vertices) {
@@ -548,8 +547,21 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
       ThrowAt(scene_path, spec.line,
               "<attach>: the region holds no vertex of '" + spec.tetbody + "'");
     }
+    // (a vertex glued to two bodies would be torn between them)
+    const std::vector<int>& pinned = deformable.pinned_vertices();
+    for (int v : vertices) {
+      auto it = std::lower_bound(pinned.begin(), pinned.end(), v);
+      if (it == pinned.end() || *it != v) continue;
+      const int other = world->PinBody(index, static_cast<size_t>(it - pinned.begin()));
+      if (other >= 0 && other != body) {
+        ThrowAt(scene_path, spec.line,
+                "<attach>: vertex " + std::to_string(v) + " of tetbody '" + spec.tetbody +
+                    "' is glued to body '" + world->RigidBodyName(other) +
+                    "' already; a vertex follows one body: make the regions apart");
+      }
+    }
     deformable.PinToFrame(vertices, BodyPose(d, body));
-    world->attach_body_[index] = body;
+    world->attach_bodies_[index].push_back(body);
     // With <solver rigid="explicit">, an attachment acts on its body after
     // the step: a body much lighter than the deformable it carries takes
     // the deformable's inertia a step late and diverges, whatever the time
@@ -587,6 +599,17 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
       world->geom_shapes_.emplace_back(g, MakeGeomShape(m, g, GeomName(m, g)));
     } catch (const Error& e) {
       ThrowAt(scene_path, 0, e.what());
+    }
+    const GeomShape& shape = world->geom_shapes_.back().second;
+    if (shape.type == mjGEOM_MESH && shape.hull_volume > kConvexHullMargin * shape.mesh_volume) {
+      char message[400];
+      std::snprintf(message, sizeof(message),
+                    "%s: its mesh is not convex, or its faces do not close it (its convex hull "
+                    "holds %.3g times what they enclose); "
+                    "deformables meet the hull, as MuJoCo's bodies do; for its own shape give the "
+                    "geom a <rigidtet> with a tetrahedral mesh of it (tetgen, gmsh)",
+                    GeomName(m, g).c_str(), shape.hull_volume / shape.mesh_volume);
+      world->load_warnings_.push_back(Where(scene_path) + ": " + message);
     }
   }
 
@@ -721,10 +744,12 @@ void World::KeepReactionPoints() {
     reaction_points_.push_back(AtStepStart(rigid, point));
   }
   for (size_t i = 0; i < bodies_.size(); ++i) {
-    if (attach_body_[i] < 0) continue;
-    for (int v : bodies_[i]->pinned_vertices()) {
+    const std::vector<int>& pinned = bodies_[i]->pinned_vertices();
+    for (size_t k = 0; k < pinned.size(); ++k) {
+      const int body = PinBody(i, k);
+      if (body < 0) continue;
       reaction_points_.push_back(
-          AtStepStart(attach_body_[i], bodies_[i]->positions().row(v).transpose()));
+          AtStepStart(body, bodies_[i]->positions().row(pinned[k]).transpose()));
     }
   }
 }
@@ -841,19 +866,24 @@ void World::BuildRigidSystem(double dt) {
   // attachments: their pins carried by their body's tree (RigidPin), at
   // the reaction points that follow the contacts' (KeepReactionPoints)
   for (size_t i = 0; i < bodies_.size(); ++i) {
-    const int body = attach_body_[i];
-    if (body < 0) continue;
     const size_t num_pins = bodies_[i]->pinned_vertices().size();
-    if (tree_num_dofs_[m->body_rootid[body]] == 0) {
-      point += num_pins;
-      continue;
-    }
     for (size_t k = 0; k < num_pins; ++k) {
+      const int body = PinBody(i, k);
+      if (body < 0) continue;
+      if (tree_num_dofs_[m->body_rootid[body]] == 0) {  // (a body that does not move)
+        ++point;
+        continue;
+      }
       add_point(body, reaction_points_[point++]);
       rigid_.pins.push_back(
           {static_cast<int>(i), static_cast<int>(k), static_cast<int>(rigid_.points.size()) - 1});
     }
   }
+}
+
+int World::PinBody(size_t deformable, size_t pin) const {
+  const int frame = bodies_[deformable]->pin_frame(pin);
+  return frame >= 0 ? attach_bodies_[deformable][static_cast<size_t>(frame)] : -1;
 }
 
 Eigen::Isometry3d World::SubstepPose(int body) const {
@@ -1196,12 +1226,13 @@ void World::Step() {
     UpdateProxies();
     CollectContacts();
     for (size_t i = 0; i < bodies_.size(); ++i) {
-      if (attach_body_[i] >= 0) {
-        // pins follow the body over this substep (predicted from its velocity)
-        const int body = attach_body_[i];
+      // pins follow their bodies over this substep (predicted from their velocities)
+      for (size_t frame = 0; frame < attach_bodies_[i].size(); ++frame) {
+        const int body = attach_bodies_[i][frame];
         Eigen::Vector3d omega, v;
         SubstepTwist(body, omega, v);
-        bodies_[i]->SetPinFrame(Advance(SubstepPose(body), omega, v, settings.dt));
+        bodies_[i]->SetPinFrame(static_cast<int>(frame),
+                                Advance(SubstepPose(body), omega, v, settings.dt));
       }
     }
     metrics_.collision_ms += MillisecondsSince(phase);
@@ -1253,9 +1284,11 @@ void World::Step() {
       AddRigidForce(body, reaction_points_[point++], sign * contacts_[c].force / substeps);
     }
     for (size_t i = 0; i < bodies_.size(); ++i) {
-      if (attach_body_[i] < 0) continue;
-      for (const Eigen::Vector3d& pin_force : bodies_[i]->pin_forces()) {
-        AddRigidForce(attach_body_[i], reaction_points_[point++], -pin_force / substeps);
+      const std::vector<Eigen::Vector3d>& pin_forces = bodies_[i]->pin_forces();
+      for (size_t k = 0; k < pin_forces.size(); ++k) {
+        const int body = PinBody(i, k);
+        if (body < 0) continue;
+        AddRigidForce(body, reaction_points_[point++], -pin_forces[k] / substeps);
       }
     }
     for (const ContactPoint& contact : contacts_) {

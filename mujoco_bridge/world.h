@@ -226,6 +226,9 @@ class World {
   // angular velocity and its origin's velocity in this substep (MuJoCo's,
   // or its tree's as a substep predicted it); every moving body's pose
   // advanced by a substep of dt.
+  // The MuJoCo body pin `pin` of deformable `deformable` follows, or -1
+  // (a fixed pin).
+  int PinBody(size_t deformable, size_t pin) const;
   Eigen::Isometry3d SubstepPose(int body) const;
   Eigen::Vector3d AtStepStart(int body, const Eigen::Vector3d& p) const;
   void SubstepTwist(int body, Eigen::Vector3d& omega, Eigen::Vector3d& v);
@@ -244,7 +247,7 @@ class World {
   std::vector<double> mean_surface_area_;  // per deformable: MeanSurfaceVertexArea
   std::vector<double> friction_;           // per deformable
   std::vector<double> damping_;            // per deformable: damping ratio
-  std::vector<int> attach_body_;           // per deformable: MuJoCo body of its pins, or -1
+  std::vector<std::vector<int>> attach_bodies_;  // per deformable: the body of each pin frame
   std::vector<std::unique_ptr<Proxy>> proxies_;
   std::vector<char> geom_has_proxy_;
   std::vector<std::pair<int, GeomShape>> geom_shapes_;  // (geom, its shape): geoms met by shape

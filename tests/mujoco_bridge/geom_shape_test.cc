@@ -342,6 +342,33 @@ TEST(GeomShape, CubesMeetMeshesHeightFieldsAndEllipsoidsAsThePrimitivesTheyEqual
   EXPECT_LT(others->DeformableKineticEnergy(), 1e-6);
 }
 
+// An arrowhead (a concave quadrilateral, extruded): its hull holds 4/3 of
+// its volume, which loading warns of; a convex mesh loads without warning.
+TEST(GeomShape, NonConvexMeshIsWarnedOf) {
+  TempDir dir("tetcosim_geom_shape");
+  // A B C D counter-clockwise from +z, D the reflex corner; 0-3 at z = 0,
+  // 4-7 at z = 0.1; every face wound outward
+  const std::string arrowhead = R"(vertex="0 0 0  0.2 0.1 0  0 0.2 0  0.05 0.1 0
+                                        0 0 0.1  0.2 0.1 0.1  0 0.2 0.1  0.05 0.1 0.1"
+        face="0 3 1  3 2 1  4 5 7  7 5 6  0 1 5  0 5 4  1 2 6  1 6 5  2 3 7  2 7 6  3 0 4  3 4 7")";
+  const std::string box = R"(vertex="0 0 0  0.2 0 0  0 0.2 0  0.2 0.2 0
+                                  0 0 0.1  0.2 0 0.1  0 0.2 0.1  0.2 0.2 0.1")";
+  auto warnings = [&](const std::string& mesh) {
+    std::unique_ptr<World> world = World::Load(dir.Write("scene.xml", R"(<mujoco>
+  <asset><mesh name="shape" )" + mesh + R"(/></asset>
+  <worldbody><geom name="rock" type="mesh" mesh="shape"/></worldbody>
+  <deformable><tetbody name="ball" shape="sphere" size="0.05" pos="0 0 1"/></deformable>
+</mujoco>)"));
+    std::string all;
+    for (const std::string& warning : world->load_warnings()) all += warning + "\n";
+    return all;
+  };
+  const std::string concave = warnings(arrowhead);
+  EXPECT_NE(concave.find("geom 'rock': its mesh is not convex"), std::string::npos) << concave;
+  EXPECT_NE(concave.find("holds 1.33 times"), std::string::npos) << concave;
+  EXPECT_EQ(warnings(box), "");
+}
+
 TEST(GeomShape, MeshWithoutAHullTouchingDeformablesIsAClearError) {
   TempDir dir("tetcosim_geom_shape");
   auto scene = [&](const std::string& contact) {
