@@ -128,7 +128,7 @@ GeomShape MakeGeomShape(const mjModel* m, int geom, const std::string& where) {
                   ": its mesh has no convex hull, which deformables collide with "
                   "as MuJoCo does; remove convexhull=\"false\" from <compiler>, or "
                   "give the geom a <rigidtet>, or keep it off deformables "
-                  "(contype and conaffinity without bit 1)");
+                  "(contype and conaffinity both even)");
     }
     HullPlanes(m, mesh, shape);
     // the mesh's own volume, sum of a . (b x c) / 6 over its faces (either

@@ -45,9 +45,10 @@ struct GeomShape {
   const float* elevation = nullptr;  // (rows x cols, hfield_data)
 };
 
-// The shape of geom `geom` of `m`, valid while `m` is. Throws Error (saying what to
-// do) for a mesh without a convex hull (<compiler convexhull="false">), which
-// the geom would need to touch deformables; `where` names the geom for it.
+// The shape of geom `geom` of `m`, valid while `m` is. Throws Error (saying
+// what to do) for a mesh without a convex hull (<compiler
+// convexhull="false">), which the geom would need to touch deformables;
+// `where` names the geom for it.
 GeomShape MakeGeomShape(const mjModel_* m, int geom, const std::string& where);
 
 // Whether p (geom frame) lies inside the shape; if so, depth (>= 0, metres)

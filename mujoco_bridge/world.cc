@@ -590,8 +590,8 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
   }
 
   // the geoms deformables meet by their shapes: those that collide with
-  // them (contype or conaffinity bit 1, as a deformable's are both 1) and
-  // have no proxy
+  // them (contype or conaffinity with bit 0 set: a deformable's are both 1)
+  // and have no proxy
   for (int g = 0; g < m->ngeom; ++g) {
     if (world->geom_has_proxy_[g]) continue;
     if (!(m->geom_contype[g] & 1) && !(m->geom_conaffinity[g] & 1)) continue;

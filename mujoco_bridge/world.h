@@ -220,15 +220,15 @@ class World {
   void FindOtherForces();                // other_forces_, once a step
   void AdvanceUnsolvedTrees(double dt);  // (substeps)
   void AddRigidForce(int body, const Eigen::Vector3d& point, const Eigen::Vector3d& force);
+  // The MuJoCo body that pin `pin` of deformable `deformable` follows, or
+  // -1 (a fixed pin).
+  int PinBody(size_t deformable, size_t pin) const;
   // Substeps (MuJoCo steps once, after them): a body's pose in this substep
   // (MuJoCo's in the first, then moved by the velocities the substeps
   // predicted); where a point of it there was at the step's start; its
   // angular velocity and its origin's velocity in this substep (MuJoCo's,
   // or its tree's as a substep predicted it); every moving body's pose
   // advanced by a substep of dt.
-  // The MuJoCo body pin `pin` of deformable `deformable` follows, or -1
-  // (a fixed pin).
-  int PinBody(size_t deformable, size_t pin) const;
   Eigen::Isometry3d SubstepPose(int body) const;
   Eigen::Vector3d AtStepStart(int body, const Eigen::Vector3d& p) const;
   void SubstepTwist(int body, Eigen::Vector3d& omega, Eigen::Vector3d& v);
