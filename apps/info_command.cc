@@ -34,6 +34,11 @@ void RunSceneInfo(const InfoOptions& options) {
   out["proxies"] = world->num_proxies();
   out["warnings"] = world->load_warnings();
   out["attachments"] = scene.attachments.size();
+  const std::vector<World::GeomSummary> geoms = world->GeomsMetByShape();
+  out["geoms_by_signed_distance"] = nlohmann::json::array();
+  for (const World::GeomSummary& geom : geoms) {
+    out["geoms_by_signed_distance"].push_back({{"name", geom.name}, {"shape", geom.shape}});
+  }
   out["deformables"] = nlohmann::json::array();
   for (int i = 0; i < world->num_deformables(); ++i) {
     const DeformableBody& body = world->deformable(i);
@@ -52,6 +57,9 @@ void RunSceneInfo(const InfoOptions& options) {
   std::printf("timestep     %g s, method %s\n", world->timestep(), DepthMethodName(scene.method));
   std::printf("MuJoCo       %d bodies, %d with tetrahedral proxies\n",
               world->num_rigid_bodies() - 1, world->num_proxies());
+  for (const World::GeomSummary& geom : geoms) {
+    std::printf("geom         %s: %s, by signed distance\n", geom.name.c_str(), geom.shape.c_str());
+  }
   for (int i = 0; i < world->num_deformables(); ++i) {
     const DeformableBody& body = world->deformable(i);
     std::printf("tetbody      %s: %d vertices, %d tetrahedra, %.4g kg, E = %g Pa, %zu pinned\n",

@@ -881,6 +881,45 @@ void World::BuildRigidSystem(double dt) {
   }
 }
 
+std::vector<World::GeomSummary> World::GeomsMetByShape() const {
+  std::vector<GeomSummary> summaries;
+  for (const auto& [g, shape] : geom_shapes_) {
+    std::string kind;
+    switch (shape.type) {
+      case mjGEOM_PLANE:
+        kind = "plane";
+        break;
+      case mjGEOM_SPHERE:
+        kind = "sphere";
+        break;
+      case mjGEOM_CAPSULE:
+        kind = "capsule";
+        break;
+      case mjGEOM_ELLIPSOID:
+        kind = "ellipsoid";
+        break;
+      case mjGEOM_CYLINDER:
+        kind = "cylinder";
+        break;
+      case mjGEOM_BOX:
+        kind = "box";
+        break;
+      case mjGEOM_MESH:
+        kind = "mesh: convex hull of " + std::to_string(shape.plane_normal.size()) + " planes";
+        break;
+      case mjGEOM_HFIELD:
+        kind = "height field " + std::to_string(shape.rows) + " x " + std::to_string(shape.cols);
+        break;
+      default:
+        kind = "type " + std::to_string(shape.type) + " (not met)";
+        break;
+    }
+    const char* name = mj_id2name(model_, mjOBJ_GEOM, g);
+    summaries.push_back({name ? std::string(name) : "#" + GeomName(model_, g).substr(5), kind});
+  }
+  return summaries;
+}
+
 int World::PinBody(size_t deformable, size_t pin) const {
   const int frame = bodies_[deformable]->pin_frame(pin);
   return frame >= 0 ? attach_bodies_[deformable][static_cast<size_t>(frame)] : -1;

@@ -167,6 +167,15 @@ class World {
   // proxies; PenetrationResult::object indexes this.
   const std::vector<CollisionObject>& collision_objects() const { return objects_; }
   int num_proxies() const { return static_cast<int>(proxies_.size()); }
+  // The geoms deformables meet by signed distance (geom_shape.h), in geom
+  // order: its name ("rock", or "#3 of body 'arm'" for one without) and
+  // how it is met ("plane", "mesh: convex hull of 14 planes", "height field
+  // 41 x 41").
+  struct GeomSummary {
+    std::string name;
+    std::string shape;
+  };
+  std::vector<GeomSummary> GeomsMetByShape() const;
   int ProxyBody(int proxy) const;
   // Metrics numbering (see Interpenetration) of a collision object.
   int MetricObject(int collision_object) const;

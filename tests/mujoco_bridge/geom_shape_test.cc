@@ -342,6 +342,47 @@ TEST(GeomShape, CubesMeetMeshesHeightFieldsAndEllipsoidsAsThePrimitivesTheyEqual
   EXPECT_LT(others->DeformableKineticEnergy(), 1e-6);
 }
 
+// The bundled terrain scene: soft bodies dropped on a height field, a
+// convex mesh and a loose ellipsoid, all met by signed distance. After a
+// second no vertex lies deeper than 2 mm below the highest geom surface
+// over it (MuJoCo's ray from above: nothing fell through), and every body
+// has come down onto something.
+TEST(GeomShape, BundledTerrainSceneHoldsItsBodiesUp) {
+  std::unique_ptr<World> world =
+      World::Load(std::string(TETCOSIM_SOURCE_DIR) + "/models/scenes/terrain.xml");
+  const std::vector<World::GeomSummary> geoms = world->GeomsMetByShape();
+  ASSERT_EQ(geoms.size(), 3u);
+  EXPECT_EQ(geoms[0].name, "ground");
+  EXPECT_EQ(geoms[0].shape, "height field 41 x 41");
+  EXPECT_EQ(geoms[1].name, "rock");
+  EXPECT_EQ(geoms[1].shape.rfind("mesh: convex hull of ", 0), 0u) << geoms[1].shape;
+  EXPECT_EQ(geoms[2].shape, "ellipsoid");
+  std::vector<double> start_z(world->num_deformables());
+  for (int i = 0; i < world->num_deformables(); ++i) {
+    start_z[i] = world->deformable(i).CenterOfMass().z();
+  }
+  for (int step = 0; step < 500; ++step) {
+    world->Step();
+    ASSERT_EQ(world->metrics().status, StepStatus::kOk) << world->metrics().message;
+  }
+  const mjModel* m = world->mj_model();
+  mjData* d = world->mj_data();
+  double deepest = 0.0;
+  for (int i = 0; i < world->num_deformables(); ++i) {
+    const DeformableBody& body = world->deformable(i);
+    EXPECT_LT(body.CenterOfMass().z(), start_z[i] - 0.02) << body.name() << " came down";
+    for (int v = 0; v < body.num_vertices(); ++v) {
+      const Eigen::Vector3d p = body.positions().row(v).transpose();
+      const mjtNum from[3] = {p.x(), p.y(), 1.0}, down[3] = {0.0, 0.0, -1.0};
+      int hit = -1;
+      const double distance = mj_ray(m, d, from, down, nullptr, 1, -1, &hit);
+      ASSERT_GE(distance, 0.0) << "nothing under " << body.name() << " vertex " << v;
+      deepest = std::max(deepest, (1.0 - distance) - p.z());
+    }
+  }
+  EXPECT_LT(deepest, 0.002) << "m below the geom surface over a vertex";
+}
+
 // An arrowhead (a concave quadrilateral, extruded): its hull holds 4/3 of
 // its volume, which loading warns of; a convex mesh loads without warning.
 TEST(GeomShape, NonConvexMeshIsWarnedOf) {
