@@ -36,6 +36,7 @@ SCENES = [
     "models/scenes/paddle.xml",
     "models/scenes/gripper.xml",
     "models/scenes/terrain.xml",
+    "models/scenes/strap.xml",
     "models/paper/cubes.xml",
     "models/paper/rigid.xml",
     "models/paper/mixed.xml",
