@@ -149,6 +149,12 @@ GeomShape MakeGeomShape(const mjModel* m, int geom, const std::string& where) {
     shape.rows = m->hfield_nrow[field];
     shape.cols = m->hfield_ncol[field];
     shape.elevation = m->hfield_data + m->hfield_adr[field];
+    if (shape.rows < 2 || shape.cols < 2) {
+      throw Error(where + ": its height field has " + std::to_string(shape.rows) + " x " +
+                  std::to_string(shape.cols) +
+                  " points, which make no surface; give it at least 2 x 2, or keep it off "
+                  "deformables (contype and conaffinity both even)");
+    }
   }
   return shape;
 }

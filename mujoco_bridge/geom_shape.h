@@ -47,8 +47,8 @@ struct GeomShape {
 
 // The shape of geom `geom` of `m`, valid while `m` is. Throws Error (saying
 // what to do) for a mesh without a convex hull (<compiler
-// convexhull="false">), which the geom would need to touch deformables;
-// `where` names the geom for it.
+// convexhull="false">), which the geom would need to touch deformables, and
+// for a height field of fewer than 2 x 2 points; `where` names the geom.
 GeomShape MakeGeomShape(const mjModel_* m, int geom, const std::string& where);
 
 // Whether p (geom frame) lies inside the shape; if so, depth (>= 0, metres)

@@ -410,7 +410,7 @@ TEST(GeomShape, NonConvexMeshIsWarnedOf) {
   EXPECT_EQ(warnings(box), "");
 }
 
-TEST(GeomShape, MeshWithoutAHullTouchingDeformablesIsAClearError) {
+TEST(GeomShape, MeshWithoutAHullOrAFieldWithoutASurfaceIsAClearError) {
   TempDir dir("tetcosim_geom_shape");
   auto scene = [&](const std::string& contact) {
     return dir.Write("scene.xml", R"(<mujoco>
@@ -434,6 +434,20 @@ TEST(GeomShape, MeshWithoutAHullTouchingDeformablesIsAClearError) {
   EXPECT_NE(message.find("convexhull"), std::string::npos) << message;
   // kept off deformables, it loads
   EXPECT_NO_THROW(World::Load(scene("contype=\"2\" conaffinity=\"2\"")));
+  // a height field of one row has no surface (MuJoCo takes it)
+  message.clear();
+  try {
+    World::Load(dir.Write("line.xml", R"(<mujoco>
+  <asset><hfield name="line" nrow="1" ncol="5" size="1 1 0.1 0.1"/></asset>
+  <worldbody><geom name="ground" type="hfield" hfield="line"/></worldbody>
+  <deformable><tetbody name="ball" shape="sphere" size="0.1" pos="0 0 1"/></deformable>
+</mujoco>)"));
+  } catch (const Error& e) {
+    message = e.what();
+  }
+  EXPECT_NE(message.find("line.xml: geom 'ground': its height field has 1 x 5 points"),
+            std::string::npos)
+      << message;
 }
 
 }  // namespace
