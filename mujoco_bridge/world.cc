@@ -42,6 +42,11 @@ constexpr double kBytesPerProxyTet = 600.0;
 // volume is warned of: deformables meet its hull.
 constexpr double kConvexHullMargin = 1.02;
 
+// A geom is passed over for a deformable whose box lies farther than this
+// (m) beyond the geom's bounding sphere or above its plane: room for the
+// rounding of the box tests, against which every vertex is still tested.
+constexpr double kGeomCullMargin = 1e-9;
+
 // The memory the system can still give (MemAvailable of /proc/meminfo, in
 // bytes), or 0 if it cannot tell (then nothing is checked).
 double AvailableMemory() {
@@ -150,6 +155,15 @@ Eigen::Isometry3d Advance(Eigen::Isometry3d X, const Eigen::Vector3d& omega,
   }
   X.translation() += t * v;
   return X;
+}
+
+// the radius of a sphere about a height field's origin that holds it
+// (MuJoCo 2.2.2 gives it none); 0 for other geoms
+double HeightFieldRadius(const GeomShape& shape) {
+  if (shape.type != mjGEOM_HFIELD) return 0.0;
+  const double* size = shape.size;
+  return std::sqrt(size[0] * size[0] + size[1] * size[1] +
+                   std::max(size[2], size[3]) * std::max(size[2], size[3]));
 }
 
 // "geom 'name'", or "geom 3 of body 'name'" for one without a name (for errors)
@@ -1032,8 +1046,20 @@ void World::UpdateProxies() {
 }
 
 void World::ForEachGeomPenetration(
-    const std::function<void(int, int, int, double, const Eigen::Vector3d&)>& visit) const {
+    const std::function<void(int, int, int, double, const Eigen::Vector3d&)>& visit) {
   const mjModel* m = model_;
+  // each deformable's box: a geom that cannot reach it is passed over
+  // whole (a robot's many geoms, most far from any deformable, cost a test
+  // each instead of one per vertex)
+  std::vector<Eigen::Vector3d>& box_lo = geom_box_lo_;
+  std::vector<Eigen::Vector3d>& box_hi = geom_box_hi_;
+  box_lo.resize(bodies_.size());
+  box_hi.resize(bodies_.size());
+  for (size_t i = 0; i < bodies_.size(); ++i) {
+    const Positions& x = bodies_[i]->positions();
+    box_lo[i] = x.colwise().minCoeff().transpose();
+    box_hi[i] = x.colwise().maxCoeff().transpose();
+  }
   for (const auto& [g, shape] : geom_shapes_) {
     Eigen::Vector3d x_g = Eigen::Map<const Eigen::Vector3d>(data_->geom_xpos + 3 * g);
     Eigen::Matrix3d R_g = Eigen::Map<const MjRotation>(data_->geom_xmat + 9 * g);
@@ -1045,7 +1071,19 @@ void World::ForEachGeomPenetration(
     }
     // (MuJoCo 2.2.2 gives planes and height fields no bounding radius)
     const bool bounded = shape.type != mjGEOM_PLANE && shape.type != mjGEOM_HFIELD;
+    const double reach = bounded ? m->geom_rbound[g] : HeightFieldRadius(shape);
     for (size_t i = 0; i < bodies_.size(); ++i) {
+      const Eigen::Vector3d centre = 0.5 * (box_lo[i] + box_hi[i]);
+      const Eigen::Vector3d half = 0.5 * (box_hi[i] - box_lo[i]);
+      if (shape.type == mjGEOM_PLANE) {
+        // the box's lowest point over the plane (its normal: the geom's z)
+        const Eigen::Vector3d n = R_g.col(2);
+        if (n.dot(centre - x_g) - n.cwiseAbs().dot(half) > kGeomCullMargin) continue;
+      } else {
+        // the box beyond the geom's bounding sphere
+        const Eigen::Vector3d gap = ((box_lo[i] - x_g).cwiseMax(x_g - box_hi[i])).cwiseMax(0.0);
+        if (gap.norm() > reach + kGeomCullMargin) continue;
+      }
       const DeformableBody& deformable = *bodies_[i];
       for (int v = 0; v < deformable.num_vertices(); ++v) {
         Eigen::Vector3d p = deformable.positions().row(v).transpose();

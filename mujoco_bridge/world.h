@@ -219,7 +219,7 @@ class World {
   // calls visit(deformable, vertex, geom, depth, direction out of the geom)
   // for every deformable vertex inside a geom without a proxy (geom_shape.h)
   void ForEachGeomPenetration(
-      const std::function<void(int, int, int, double, const Eigen::Vector3d&)>& visit) const;
+      const std::function<void(int, int, int, double, const Eigen::Vector3d&)>& visit);
   // Before a step: where the reactions of the contacts with MuJoCo bodies,
   // then of the pins, will act (reaction_points_).
   void KeepReactionPoints();
@@ -259,7 +259,8 @@ class World {
   std::vector<std::vector<int>> attach_bodies_;  // per deformable: the body of each pin frame
   std::vector<std::unique_ptr<Proxy>> proxies_;
   std::vector<char> geom_has_proxy_;
-  std::vector<std::pair<int, GeomShape>> geom_shapes_;  // (geom, its shape): geoms met by shape
+  std::vector<std::pair<int, GeomShape>> geom_shapes_;      // (geom, its shape): geoms met by shape
+  std::vector<Eigen::Vector3d> geom_box_lo_, geom_box_hi_;  // per deformable (scratch)
   PenetrationSolver solver_;
   PenetrationSolver exact_solver_;  // closest-feature, for MeasureInterpenetration
   std::vector<CollisionObject> objects_;
