@@ -99,6 +99,12 @@ struct ContactLinearization {
   Eigen::Vector3d relative_velocity;  // v_A - v_B
   Eigen::Vector3d rigid_velocity;     // the part of it from rigid/static sides
 };
+// The part of u in the plane normal to the unit `normal`: (I - n n^T) u,
+// a contact's tangential part of a velocity, a force or a friction spring.
+inline Eigen::Vector3d Tangential(const Eigen::Vector3d& u, const Eigen::Vector3d& normal) {
+  return u - u.dot(normal) * normal;
+}
+
 // Which friction law a contact follows in a step (above): smooth, or with
 // static friction sticking or sliding.
 enum class FrictionLaw { kSmooth, kSticking, kSliding };

@@ -140,8 +140,7 @@ double FrictionLimit(const Eigen::Vector3d& force, const ContactPoint& contact) 
 
 // whether a contact's force on A lies in its friction cone, |f_t| <= mu f_n
 bool InsideFrictionCone(const Eigen::Vector3d& force, const ContactPoint& contact) {
-  const Eigen::Vector3d tangential = force - force.dot(contact.direction) * contact.direction;
-  return tangential.norm() <= FrictionLimit(force, contact);
+  return Tangential(force, contact.direction).norm() <= FrictionLimit(force, contact);
 }
 
 }  // namespace
@@ -293,8 +292,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   // (to sliding, Coulomb's force along the tangential part of `along` at
   // the normal force of `force`: the sticking force at a trial solution)
   auto slide_along = [&](size_t c, const Eigen::Vector3d& along, const Eigen::Vector3d& force) {
-    const Eigen::Vector3d& normal = contacts[c].direction;
-    const Eigen::Vector3d tangential = along - along.dot(normal) * normal;
+    const Eigen::Vector3d tangential = Tangential(along, contacts[c].direction);
     const double length = tangential.norm();
     const double limit = FrictionLimit(force, contacts[c]);
     slide[c] = length > 0.0 ? (limit / length * tangential).eval() : Eigen::Vector3d::Zero();
@@ -370,6 +368,10 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   }
   filter(momentum);
 
+  // the relative velocity v_A - v_B of contact c at v+
+  auto relative_velocity = [&](size_t c, const Eigen::VectorXd& v_plus) -> Eigen::Vector3d {
+    return couplings[c].Jv(v_plus) + linear[c].rigid_velocity;
+  };
   // the force of contact c integrated to the end of the step, at v+
   auto integrated_force = [&](size_t c, const Eigen::VectorXd& v_plus) -> Eigen::Vector3d {
     const Eigen::Vector3d Jv_plus = couplings[c].Jv(v_plus);
@@ -569,7 +571,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
             ++switches[c];
             changed = true;
           } else if (law[c] == FrictionLaw::kSliding && switches[c] < 2 &&
-                     (couplings[c].Jv(v_new) + linear[c].rigid_velocity).dot(slide[c]) > 0.0) {
+                     relative_velocity(c, v_new).dot(slide[c]) > 0.0) {
             // (Coulomb's force turned A's slip around: it stops, so it sticks)
             stick_again(c);
             ++switches[c];
@@ -612,15 +614,14 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
       contact.stick.setZero();
       continue;
     }
-    const Eigen::Vector3d& normal = contact.direction;
     const double k_t = contact_settings.stick_stiffness * contact.stiffness;
     Eigen::Vector3d s;
     if (contact.stuck) {
-      s = contact.stick + dt * (couplings[c].Jv(v_new) + linear[c].rigid_velocity);
+      s = contact.stick + dt * relative_velocity(c, v_new);
     } else {
       s = -contact.force / k_t;
     }
-    s -= s.dot(normal) * normal;
+    s = Tangential(s, contact.direction);
     const double limit = FrictionLimit(contact.force, contact) / k_t;
     if (s.norm() > limit) s *= limit / s.norm();
     contact.stick = s;

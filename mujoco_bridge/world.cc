@@ -166,12 +166,17 @@ double HeightFieldRadius(const GeomShape& shape) {
                    std::max(size[2], size[3]) * std::max(size[2], size[3]));
 }
 
-// "geom 'name'", or "geom 3 of body 'name'" for one without a name (for errors)
+// a geom without a name, as "3 of body 'arm'" (or "3 of body 2")
+std::string UnnamedGeom(const mjModel* m, int geom) {
+  const char* body = mj_id2name(m, mjOBJ_BODY, m->geom_bodyid[geom]);
+  return std::to_string(geom) + " of body " +
+         (body ? std::string("'") + body + "'" : std::to_string(m->geom_bodyid[geom]));
+}
+
+// "geom 'name'", or "geom 3 of body 'arm'" for one without a name (for errors)
 std::string GeomName(const mjModel* m, int geom) {
   if (const char* name = mj_id2name(m, mjOBJ_GEOM, geom)) return std::string("geom '") + name + "'";
-  const char* body = mj_id2name(m, mjOBJ_BODY, m->geom_bodyid[geom]);
-  return "geom " + std::to_string(geom) + " of body " +
-         (body ? std::string("'") + body + "'" : std::to_string(m->geom_bodyid[geom]));
+  return "geom " + UnnamedGeom(m, geom);
 }
 
 // a tetrahedral mesh of a primitive geom, in the geom's own frame
@@ -609,8 +614,9 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
   for (int g = 0; g < m->ngeom; ++g) {
     if (world->geom_has_proxy_[g]) continue;
     if (!(m->geom_contype[g] & 1) && !(m->geom_conaffinity[g] & 1)) continue;
+    const std::string name = GeomName(m, g);
     try {
-      world->geom_shapes_.emplace_back(g, MakeGeomShape(m, g, GeomName(m, g)));
+      world->geom_shapes_.emplace_back(g, MakeGeomShape(m, g, name));
     } catch (const Error& e) {
       ThrowAt(scene_path, 0, e.what());
     }
@@ -622,7 +628,7 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
                     "holds %.3g times what they enclose); "
                     "deformables meet the hull, as MuJoCo's bodies do; for its own shape give the "
                     "geom a <rigidtet> with a tetrahedral mesh of it (tetgen, gmsh)",
-                    GeomName(m, g).c_str(), shape.hull_volume / shape.mesh_volume);
+                    name.c_str(), shape.hull_volume / shape.mesh_volume);
       world->load_warnings_.push_back(Where(scene_path) + ": " + message);
     }
   }
@@ -929,7 +935,7 @@ std::vector<World::GeomSummary> World::GeomsMetByShape() const {
         break;
     }
     const char* name = mj_id2name(model_, mjOBJ_GEOM, g);
-    summaries.push_back({name ? std::string(name) : "#" + GeomName(model_, g).substr(5), kind});
+    summaries.push_back({name ? std::string(name) : "#" + UnnamedGeom(model_, g), kind});
   }
   return summaries;
 }
@@ -1127,8 +1133,7 @@ void World::RestoreFrictionSprings() {
     if (it == springs_.end() || it->first != contact_key_[c]) continue;
     // (onto this step's tangent plane, its length kept: the spring's force
     // turns with the contact's direction)
-    const Eigen::Vector3d& normal = contacts_[c].direction;
-    const Eigen::Vector3d s = it->second - it->second.dot(normal) * normal;
+    const Eigen::Vector3d s = Tangential(it->second, contacts_[c].direction);
     const double length = s.norm();
     if (length > 0.0) contacts_[c].stick = (it->second.norm() / length) * s;
   }
