@@ -16,6 +16,12 @@ namespace {
 // the hull's size) are one plane.
 constexpr double kSamePlane = 1e-12;
 
+// vertex i of mesh `mesh` (geom frame; MuJoCo keeps them in single precision)
+Eigen::Vector3d MeshVertex(const mjModel* m, int mesh, int i) {
+  const float* x = m->mesh_vert + 3 * (m->mesh_vertadr[mesh] + i);
+  return Eigen::Vector3d(x[0], x[1], x[2]);
+}
+
 // The planes of the faces of mesh `mesh`'s convex hull, from MuJoCo's
 // graph of it (mesh_graph: numvert, numface, vert_edgeadr (numvert),
 // vert_globalid (numvert), edge_localid (numvert + 3 numface),
@@ -26,10 +32,7 @@ void HullPlanes(const mjModel* m, int mesh, GeomShape& shape) {
   const int num_faces = graph[1];
   const int* vertex_id = graph + 2 + num_vertices;
   const int* face = graph + 2 + 3 * num_vertices + 3 * num_faces;
-  const float* vertices = m->mesh_vert + 3 * m->mesh_vertadr[mesh];
-  auto vertex = [&](int i) {
-    return Eigen::Vector3d(vertices[3 * i], vertices[3 * i + 1], vertices[3 * i + 2]);
-  };
+  auto vertex = [&](int i) { return MeshVertex(m, mesh, i); };
   // a point inside: the mean of the hull's vertices
   Eigen::Vector3d inside = Eigen::Vector3d::Zero();
   double radius = 0.0;
@@ -133,11 +136,8 @@ GeomShape MakeGeomShape(const mjModel* m, int geom, const std::string& where) {
     HullPlanes(m, mesh, shape);
     // the mesh's own volume, sum of a . (b x c) / 6 over its faces (either
     // winding, if the same throughout)
-    const float* vertices = m->mesh_vert + 3 * m->mesh_vertadr[mesh];
     const int* faces = m->mesh_face + 3 * m->mesh_faceadr[mesh];
-    auto vertex = [&](int i) {
-      return Eigen::Vector3d(vertices[3 * i], vertices[3 * i + 1], vertices[3 * i + 2]);
-    };
+    auto vertex = [&](int i) { return MeshVertex(m, mesh, i); };
     double volume = 0.0;
     for (int f = 0; f < m->mesh_facenum[mesh]; ++f) {
       volume += vertex(faces[3 * f]).dot(vertex(faces[3 * f + 1]).cross(vertex(faces[3 * f + 2])));
