@@ -38,6 +38,7 @@ ContactLinearization LinearizeContact(std::span<DeformableBody* const> bodies,
   } else if (contact.rigid_point < 0) {
     out.rigid_velocity -= contact.velocity_b;
   }
+  out.rigid_velocity += contact.arc;
   // reduced mass (a side without mass is infinitely heavy)
   const double mass = m_a > 0.0 && m_b > 0.0 ? m_a * m_b / (m_a + m_b) : std::max(m_a, m_b);
   const double k = contact.stiffness;

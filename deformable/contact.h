@@ -28,7 +28,8 @@
 // slider, as in the friction models of Dahl or Kikuuwe et al. 2006, and
 // return mapping in plasticity): a sticking contact is a tangential spring,
 // s the elastic tangential displacement of A against B since it stuck,
-// integrated with the step (s+ = (I - r r^T)(s + dt v_t+)), k_t =
+// integrated with the step (s+ = (I - r r^T)(s + dt (v_t+ + arc)), the
+// arc a turning rigid side's: ContactPoint::arc), k_t =
 // stick_stiffness k and c_t = 2 zeta sqrt(k_t m); so a held body's
 // relative velocity goes to zero. A contact whose sticking force would
 // leave the cone |f_t| <= mu f_n slides instead: Coulomb's mu f_n, along the
@@ -37,7 +38,8 @@
 // step integrates; s is then where the spring holds that force. A sliding
 // contact that the step would turn around sticks instead. coupled_step.h
 // decides, in the rounds of its solve; the caller keeps s from step to
-// step (ContactPoint::stick).
+// step (ContactPoint::stick), turning it with B (s is a displacement from a
+// point of B's: World::PenetratedFrame).
 
 #include <Eigen/Core>
 #include <span>
@@ -61,6 +63,12 @@ struct ContactPoint {
   Eigen::Vector4d barycentric_b = Eigen::Vector4d::Zero();
   Eigen::Vector3d velocity_b = Eigen::Vector3d::Zero();  // m/s, rigid or static B only
   double mass_b = 0.0;  // kg, rigid B only (<= 0: infinite, static)
+  // A turning rigid side's point moves over the step along an arc, not
+  // along its velocity: how far beyond dt times its velocity, per dt (m/s),
+  // A's minus B's. A part of the relative motion the step integrates (the
+  // contact's depth and friction spring at the step's end), not of its
+  // damping. Zero: straight (deformable sides; a body that does not turn).
+  Eigen::Vector3d arc = Eigen::Vector3d::Zero();
   // The rigid side (A or B) solved with the step: its entry in
   // RigidSystem::points (coupled_step.h), whose velocities are unknowns of
   // the step like the deformables'; -1: the rigid side keeps velocity_a or
@@ -89,15 +97,16 @@ struct ContactSettings {
 };
 
 // A contact's force at the current state and its derivatives (see above),
-// with the relative velocity at the contact and the constant part of it
-// that comes from rigid or static sides (not from a rigid side solved with
-// the step, rigid_point >= 0).
+// with the relative velocity at the contact and the constant part of the
+// relative motion over the step (per dt): rigid or static sides' velocities
+// (not a rigid side solved with the step, rigid_point >= 0) and the arcs
+// (ContactPoint::arc).
 struct ContactLinearization {
   Eigen::Vector3d force;              // on A
   Eigen::Matrix3d stiffness;          // -df/dx (relative position)
   Eigen::Matrix3d damping;            // -df/dv (relative velocity)
   Eigen::Vector3d relative_velocity;  // v_A - v_B
-  Eigen::Vector3d rigid_velocity;     // the part of it from rigid/static sides
+  Eigen::Vector3d rigid_velocity;     // constant: rigid/static sides and arcs
 };
 // The part of u in the plane normal to the unit `normal`: (I - n n^T) u,
 // a contact's tangential part of a velocity, a force or a friction spring.

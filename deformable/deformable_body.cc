@@ -617,6 +617,15 @@ double DeformableBody::ElasticEnergy() const {
   return energy;
 }
 
+Eigen::Quaterniond DeformableBody::ElementRotation(int t) const {
+  const FemModel& model = *model_;
+  Eigen::Vector3d x[4];
+  for (int i = 0; i < 4; ++i) x[i] = x_.row(model.mesh().tets()(t, i)).transpose();
+  Eigen::Quaterniond q = rotations_[t];
+  ExtractRotation(DeformationGradient(model.gradients()[t], x), q);
+  return q;
+}
+
 double DeformableBody::GravitationalEnergy(const Eigen::Vector3d& gravity) const {
   return -(model_->masses().transpose() * (x_ * gravity))(0);
 }

@@ -183,6 +183,10 @@ class DeformableBody {
   Positions ElasticForces();
   // Element rotations from the last step (#T).
   const std::vector<Eigen::Quaterniond>& rotations() const { return rotations_; }
+  // The rotation of element t at the current positions (the polar rotation
+  // of its deformation gradient, from the last step's as a warm start): the
+  // frame that turns with the material there.
+  Eigen::Quaterniond ElementRotation(int t) const;
 
  private:
   using SparseMatrix = Eigen::SparseMatrix<double, Eigen::RowMajor, int>;

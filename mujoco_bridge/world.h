@@ -213,8 +213,8 @@ class World {
   void AddLoadWarnings(const TetMesh& mesh, const std::string& scene_path, long line,
                        const std::string& element, const std::string& file);
   void UpdateProxies();
-  void CollectContacts();
-  void AddGeomContacts();
+  void CollectContacts(double dt);
+  void AddGeomContacts(double dt);
   void BuildCollisionObjects();
   // calls visit(deformable, vertex, geom, depth, direction out of the geom)
   // for every deformable vertex inside a geom without a proxy (geom_shape.h)
@@ -240,6 +240,13 @@ class World {
   // advanced by a substep of dt.
   Eigen::Isometry3d SubstepPose(int body) const;
   Eigen::Vector3d AtStepStart(int body, const Eigen::Vector3d& p) const;
+  // How far beyond dt times its velocity at the step's start the world
+  // point p_W of a turning MuJoCo body (where this substep has it) moves
+  // over a (sub)step of dt, per dt (ContactPoint::arc): the body turns about
+  // its origin at its angular velocity (as MuJoCo turns a free body, or one
+  // on a hinge through its origin), and in a later substep has turned since
+  // the step's start, its point's velocity with it.
+  Eigen::Vector3d ArcVelocity(int body, const Eigen::Vector3d& p_W, double dt) const;
   void SubstepTwist(int body, Eigen::Vector3d& omega, Eigen::Vector3d& v);
   void AdvanceSubstepPoses(double dt);
   // After MuJoCo's step: moves the trees the substeps solved as far as the
@@ -271,9 +278,14 @@ class World {
   // (ContactPoint::stick) carries over (springs_, sorted by key). A key:
   // the point's collision object in objects_ (or its deformable, against a
   // geom), its vertex, the penetrated collision object (or -1 - the geom).
+  // A spring is kept in the frame of what the point is inside (B) and turns
+  // with it: B's body, or the rotation of B's tetrahedron under the point
+  // (PenetratedFrame, contact_frame_ when the contacts were collected).
   using ContactKey = std::array<int, 3>;
-  std::vector<ContactKey> contact_key_;  // per contact
+  std::vector<ContactKey> contact_key_;            // per contact
+  std::vector<Eigen::Quaterniond> contact_frame_;  // per contact
   std::vector<std::pair<ContactKey, Eigen::Vector3d>> springs_;
+  Eigen::Quaterniond PenetratedFrame(size_t contact) const;
   void RestoreFrictionSprings();
   void KeepFrictionSprings();
   std::vector<Eigen::Vector3d> reaction_points_;  // see KeepReactionPoints

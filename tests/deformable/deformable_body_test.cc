@@ -380,6 +380,28 @@ TEST(DeformableBody, InvertedElementsRecover) {
   EXPECT_LT(body.ElasticEnergy(), 1e-6);
 }
 
+// ElementRotation: a body turned rigidly (by more than a Newton step from
+// its warm start) gives every element that turn; stretched along an axis
+// besides, still that turn (a stretch has no rotation)
+TEST(DeformableBody, ElementRotationIsTheTurnOfTheMaterial) {
+  auto model = Model("box:size=0.05,0.03,0.02:res=3");
+  DeformableBody body(model, "box");
+  const Positions rest = body.positions();
+  const Eigen::Quaterniond turn(Eigen::AngleAxisd(2.0, Eigen::Vector3d(1, -2, 0.5).normalized()));
+  for (double stretch : {1.0, 1.3}) {
+    for (int v = 0; v < body.num_vertices(); ++v) {
+      Eigen::Vector3d x = rest.row(v).transpose();
+      x.x() *= stretch;
+      body.mutable_positions().row(v) = (turn * x + Eigen::Vector3d(1, 2, 3)).transpose();
+    }
+    double worst = 0.0;
+    for (int t = 0; t < model->num_tets(); ++t) {
+      worst = std::max(worst, body.ElementRotation(t).angularDistance(turn));
+    }
+    EXPECT_LT(worst, 1e-10) << "stretch " << stretch;
+  }
+}
+
 // Two deformables colliding in zero gravity (consistent penetration depth):
 // the contact forces are equal and opposite.
 TEST(DeformableBody, CollisionConservesLinearMomentum) {
