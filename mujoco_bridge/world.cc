@@ -1169,7 +1169,7 @@ Eigen::Quaterniond World::PenetratedFrame(size_t c) const {
 }
 
 void World::RestoreFrictionSprings() {
-  contact_frame_.resize(contacts_.size());
+  contact_frame_.assign(contacts_.size(), Eigen::Quaterniond::Identity());
   if (!contact_settings_.stick) return;
   for (size_t c = 0; c < contacts_.size(); ++c) {
     if (contacts_[c].friction > 0.0) contact_frame_[c] = PenetratedFrame(c);
