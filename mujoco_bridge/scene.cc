@@ -204,7 +204,8 @@ class SceneParser {
         } else if (kind == "attach") {
           scene.attachments.push_back(Attach(child));
         } else if (kind == "contact") {
-          CheckAttributes(child, {"method", "stiffness", "damping", "friction", "slip", "stick"});
+          CheckAttributes(child, {"method", "stiffness", "damping", "friction", "slip", "stick",
+                                  "stickstiffness"});
           if (const char* method = child->Attribute("method")) {
             std::string m(method);
             if (m == "consistent") {
@@ -221,6 +222,10 @@ class SceneParser {
           // tests/scenarios/friction_test.cc holds, gripper.xml solves)
           scene.slip = Number(child, "slip", 1e-6, 1.0);
           scene.stick = Bool(child, "stick", true);
+          // (a spring a thousandth as stiff as the normal gives way by a
+          // thousand times mu times the depth before it slides; 1000 times
+          // stiffer holds within a thousandth of it)
+          scene.stick_stiffness = Number(child, "stickstiffness", 1e-3, 1e3);
         } else if (kind == "solver") {
           CheckAttributes(child, {"substeps", "linear", "tolerance", "maxiter", "rigid"});
           scene.solver.substeps = static_cast<int>(Number(child, "substeps", 1, 1000).value_or(1));

@@ -80,6 +80,9 @@ struct SceneSpec {
   // static friction (ContactSettings::stick): contacts inside the friction
   // cone stick; false: the smooth law alone, which creeps under load
   bool stick = true;
+  // the sticking spring's stiffness k_t as a fraction of the contact's
+  // normal k (ContactSettings::stick_stiffness); default 1
+  std::optional<double> stick_stiffness;
   SolverSpec solver;
   std::vector<TetBodySpec> tetbodies;
   std::vector<RigidTetSpec> rigidtets;

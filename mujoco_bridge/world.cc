@@ -387,6 +387,7 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
   const ContactParams& scene_contact = scene.contact;
   if (scene.slip) world->contact_settings_.slip_velocity = *scene.slip;
   world->contact_settings_.stick = scene.stick;
+  if (scene.stick_stiffness) world->contact_settings_.stick_stiffness = *scene.stick_stiffness;
   std::string skins;
   const double available_memory = options.memory_limit.value_or(AvailableMemory());
   double needed_memory = 0.0;

@@ -113,6 +113,8 @@ TEST(SceneLoading, BadScenesNameTheLine) {
       // no smoothing at all: a sticking contact's friction damping divides by 0
       {"<contact slip=\"0\"/>\n", "scene.xml:6: <contact>: slip = 0 is outside [1e-06, 1]"},
       {"<contact stick=\"yes\"/>\n", "scene.xml:6: <contact>: stick must be true or false"},
+      {"<contact stickstiffness=\"0\"/>\n",
+       "scene.xml:6: <contact>: stickstiffness = 0 is outside [0.001, 1000]"},
       // a second settings element replaced the first's settings
       {"<contact friction=\"0.5\"/>\n<contact damping=\"0.1\"/>\n",
        "scene.xml:7: <contact>: only one <contact> is allowed inside <deformable> (the first is on "
