@@ -584,9 +584,7 @@ Positions DeformableBody::ElasticForces() {
   Positions forces = Positions::Zero(num_vertices(), 3);
   for (int t = 0; t < model.num_tets(); ++t) {
     const auto tet = model.mesh().tets().row(t);
-    Eigen::Vector3d x[4];
-    for (int i = 0; i < 4; ++i) x[i] = x_.row(tet[i]).transpose();
-    const Eigen::Matrix3d F = DeformationGradient(model.gradients()[t], x);
+    const Eigen::Matrix3d F = ElementDeformation(t);
     // converged polar rotation: forces exactly the energy gradient
     const Eigen::Matrix3d R = ExtractRotation(F, rotations_[t], 100, 1e-15);
     const Eigen::Matrix3d VP =
@@ -606,9 +604,7 @@ double DeformableBody::ElasticEnergy() const {
   const FemModel& model = *model_;
   double energy = 0.0;
   for (int t = 0; t < model.num_tets(); ++t) {
-    Eigen::Vector3d x[4];
-    for (int i = 0; i < 4; ++i) x[i] = x_.row(model.mesh().tets()(t, i)).transpose();
-    Eigen::Matrix3d F = DeformationGradient(model.gradients()[t], x);
+    const Eigen::Matrix3d F = ElementDeformation(t);
     Eigen::Quaterniond q = rotations_[t];
     Eigen::Matrix3d R = ExtractRotation(F, q);
     energy +=
@@ -617,12 +613,16 @@ double DeformableBody::ElasticEnergy() const {
   return energy;
 }
 
-Eigen::Quaterniond DeformableBody::ElementRotation(int t) const {
+Eigen::Matrix3d DeformableBody::ElementDeformation(int t) const {
   const FemModel& model = *model_;
   Eigen::Vector3d x[4];
   for (int i = 0; i < 4; ++i) x[i] = x_.row(model.mesh().tets()(t, i)).transpose();
+  return DeformationGradient(model.gradients()[t], x);
+}
+
+Eigen::Quaterniond DeformableBody::ElementRotation(int t) const {
   Eigen::Quaterniond q = rotations_[t];
-  ExtractRotation(DeformationGradient(model.gradients()[t], x), q);
+  ExtractRotation(ElementDeformation(t), q);
   return q;
 }
 

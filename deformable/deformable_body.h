@@ -189,6 +189,8 @@ class DeformableBody {
   Eigen::Quaterniond ElementRotation(int t) const;
 
  private:
+  // F of element t at the current positions
+  Eigen::Matrix3d ElementDeformation(int t) const;
   using SparseMatrix = Eigen::SparseMatrix<double, Eigen::RowMajor, int>;
 
   // builds b, the element data of the product and the diagonal blocks; and,

@@ -737,28 +737,32 @@ Eigen::Vector3d World::RigidBodyPointVelocity(int body, const Eigen::Vector3d& p
   return v + omega.cross(p - Eigen::Map<const Eigen::Vector3d>(data_->xpos + 3 * body));
 }
 
-Eigen::Vector3d World::ArcVelocity(int body, const Eigen::Vector3d& p, double dt) const {
-  if (body <= 0) return Eigen::Vector3d::Zero();
+World::PointMotion World::RigidPointMotion(int body, const Eigen::Vector3d& p, double dt) const {
+  PointMotion motion;
+  if (body <= 0) return motion;
   double velocity[6];  // angular, then linear at the body origin xpos, world frame
   mj_objectVelocity(model_, data_, mjOBJ_XBODY, body, velocity, 0);
   const Eigen::Vector3d omega(velocity[0], velocity[1], velocity[2]);
-  const double angle = omega.norm() * dt;
-  if (angle == 0.0) return Eigen::Vector3d::Zero();
+  const Eigen::Vector3d v(velocity[3], velocity[4], velocity[5]);
   // the point's arm from the body's origin, now and at the step's start
-  // (where the step takes its velocity: RigidBodyPointVelocity, MuJoCo's
-  // Jacobians); they differ in a later substep, the body having turned
+  // (where the step takes its velocity, as MuJoCo's Jacobians do); they
+  // differ in a later substep, the body having turned
   const Eigen::Vector3d r = p - SubstepPose(body).translation();
   const Eigen::Vector3d r_0 =
       AtStepStart(body, p) - Eigen::Map<const Eigen::Vector3d>(data_->xpos + 3 * body);
+  motion.velocity = v + omega.cross(r_0);
+  const double angle = omega.norm() * dt;
+  if (angle == 0.0) return motion;
   // (R - I) r - angle k x r, R the turn by `angle` about k: Rodrigues'
   // formula less its first-order term, (sin a - a) k x r + (1 - cos a) k x
   // (k x r), with 1 - cos a = 2 sin^2(a / 2) (no cancellation)
   const Eigen::Vector3d k = omega / omega.norm();
   const double half_sine = std::sin(0.5 * angle);
-  return ((std::sin(angle) - angle) * k.cross(r) +
-          2.0 * half_sine * half_sine * k.cross(k.cross(r))) /
-             dt +
-         omega.cross(r - r_0);
+  motion.arc =
+      ((std::sin(angle) - angle) * k.cross(r) + 2.0 * half_sine * half_sine * k.cross(k.cross(r))) /
+          dt +
+      omega.cross(r - r_0);
+  return motion;
 }
 
 // Where a deformable's momentum changes in a step, x0 x dp about the
@@ -1140,8 +1144,9 @@ void World::AddGeomContacts(double dt) {
     ContactPoint contact;
     contact.body_a = i;
     contact.vertex_a = v;
-    contact.velocity_b = RigidBodyPointVelocity(body, AtStepStart(body, p));
-    contact.arc = -ArcVelocity(body, p, dt);
+    const PointMotion motion = RigidPointMotion(body, p, dt);
+    contact.velocity_b = motion.velocity;
+    contact.arc = -motion.arc;
     contact.mass_b = body > 0 ? m->body_mass[body] : 0.0;
     contact.depth = depth;
     contact.direction = direction;
@@ -1283,8 +1288,9 @@ void World::CollectContacts(double dt) {
       const Proxy& proxy = *proxies_[r.object - num_deformables];
       rigid = proxy.body;
       Eigen::Vector3d p = proxy.positions.row(r.vertex).transpose();
-      contact.velocity_a = RigidBodyPointVelocity(proxy.body, AtStepStart(proxy.body, p));
-      contact.arc = ArcVelocity(proxy.body, p, dt);
+      const PointMotion motion = RigidPointMotion(proxy.body, p, dt);
+      contact.velocity_a = motion.velocity;
+      contact.arc = motion.arc;
       contact.mass_a = model_->body_mass[proxy.body];
       area = proxy.areas[r.vertex];
       kappa = kappa_[r.penetrated];
@@ -1300,8 +1306,9 @@ void World::CollectContacts(double dt) {
       const Proxy& proxy = *proxies_[r.penetrated - num_deformables];
       rigid = proxy.body;
       Eigen::Vector3d p = bodies_[r.object]->positions().row(r.vertex).transpose();
-      contact.velocity_b = RigidBodyPointVelocity(proxy.body, AtStepStart(proxy.body, p));
-      contact.arc = -ArcVelocity(proxy.body, p, dt);
+      const PointMotion motion = RigidPointMotion(proxy.body, p, dt);
+      contact.velocity_b = motion.velocity;
+      contact.arc = -motion.arc;
       contact.mass_b = model_->body_mass[proxy.body];
       contact.friction = std::max(contact.friction, proxy.friction);
     }

@@ -240,13 +240,18 @@ class World {
   // advanced by a substep of dt.
   Eigen::Isometry3d SubstepPose(int body) const;
   Eigen::Vector3d AtStepStart(int body, const Eigen::Vector3d& p) const;
-  // How far beyond dt times its velocity at the step's start the world
-  // point p_W of a turning MuJoCo body (where this substep has it) moves
-  // over a (sub)step of dt, per dt (ContactPoint::arc): the body turns about
-  // its origin at its angular velocity (as MuJoCo turns a free body, or one
-  // on a hinge through its origin), and in a later substep has turned since
-  // the step's start, its point's velocity with it.
-  Eigen::Vector3d ArcVelocity(int body, const Eigen::Vector3d& p_W, double dt) const;
+  // The world point p_W of a MuJoCo body (where this substep has it) over a
+  // (sub)step of dt: its velocity where it was at the step's start
+  // (RigidBodyPointVelocity there), and how far beyond dt times that it
+  // moves, per dt (ContactPoint::arc): the body turns about its origin at
+  // its angular velocity (as MuJoCo turns a free body, or one on a hinge
+  // through its origin), and in a later substep has turned since the step's
+  // start, its point's velocity with it. Zero for the world body.
+  struct PointMotion {
+    Eigen::Vector3d velocity = Eigen::Vector3d::Zero();
+    Eigen::Vector3d arc = Eigen::Vector3d::Zero();
+  };
+  PointMotion RigidPointMotion(int body, const Eigen::Vector3d& p_W, double dt) const;
   void SubstepTwist(int body, Eigen::Vector3d& omega, Eigen::Vector3d& v);
   void AdvanceSubstepPoses(double dt);
   // After MuJoCo's step: moves the trees the substeps solved as far as the
