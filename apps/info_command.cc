@@ -35,9 +35,9 @@ void RunSceneInfo(const InfoOptions& options) {
   out["warnings"] = world->load_warnings();
   out["attachments"] = scene.attachments.size();
   const std::vector<World::GeomSummary> geoms = world->GeomsMetByShape();
-  out["geoms_by_signed_distance"] = nlohmann::json::array();
+  out["geoms_without_proxies"] = nlohmann::json::array();
   for (const World::GeomSummary& geom : geoms) {
-    out["geoms_by_signed_distance"].push_back({{"name", geom.name}, {"shape", geom.shape}});
+    out["geoms_without_proxies"].push_back({{"name", geom.name}, {"shape", geom.shape}});
   }
   out["deformables"] = nlohmann::json::array();
   for (int i = 0; i < world->num_deformables(); ++i) {
@@ -58,7 +58,7 @@ void RunSceneInfo(const InfoOptions& options) {
   std::printf("MuJoCo       %d bodies, %d with tetrahedral proxies\n",
               world->num_rigid_bodies() - 1, world->num_proxies());
   for (const World::GeomSummary& geom : geoms) {
-    std::printf("geom         %s: %s, by signed distance\n", geom.name.c_str(), geom.shape.c_str());
+    std::printf("geom         %s: %s, without a proxy\n", geom.name.c_str(), geom.shape.c_str());
   }
   for (int i = 0; i < world->num_deformables(); ++i) {
     const DeformableBody& body = world->deformable(i);

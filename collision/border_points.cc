@@ -94,13 +94,8 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
     const TetMesh& mesh_a = *objects[a].mesh;
     const Triangles& surface_b = objects[b].mesh->surface();
     const Eigen::Vector3d p = Position(hit.vertex);
-    // stage 3's sums over the crossings, and the nearest crossing's normal
-    double weight_sum = 0.0;
-    double depth_sum = 0.0;
-    Eigen::Vector3d normal_sum = Eigen::Vector3d::Zero();
-    Eigen::Vector3d nearest_normal = Eigen::Vector3d::Zero();
-    double nearest_distance = std::numeric_limits<double>::infinity();
-    bool any_crossing = false;
+    // stage 3's sums over the crossings
+    BorderPointSums sums(on_surface);
     // p's neighbours inside B: if p is a border point, the candidates for
     // the first propagation layer (those that are not border points too)
     std::vector<int>& candidates = scratch.candidates;
@@ -244,34 +239,13 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
                         face_normal, normal)) {
         continue;
       }
-      // stage 3: w_i = 1 / |x_i - p|^2 (method.md)
-      const Eigen::Vector3d to_crossing = crossing - p;
-      const double distance = to_crossing.norm();
-      if (distance < nearest_distance) {
-        nearest_distance = distance;
-        nearest_normal = normal;
-      }
-      any_crossing = true;
-      if (distance < on_surface) continue;
-      const double w = 1.0 / (distance * distance);
-      weight_sum += w;
-      depth_sum += w * to_crossing.dot(normal);
-      normal_sum += w * normal;
+      sums.Add(crossing - p, normal);
     }
-    if (!any_crossing) {  // not a border point (or no crossing found)
+    if (!sums.any()) {  // not a border point (or no crossing found)
       candidates.resize(num_listed);
       return;
     }
-    if (nearest_distance < on_surface || weight_sum == 0.0) {
-      depth_[h] = 0.0;
-      direction_[h] = nearest_normal;
-    } else {
-      depth_[h] = std::max(0.0, depth_sum / weight_sum);
-      const double normal_length = normal_sum.norm();
-      direction_[h] = normal_length > 1e-12 * weight_sum
-                          ? Eigen::Vector3d(normal_sum / normal_length)
-                          : nearest_normal;
-    }
+    sums.Result(depth_[h], direction_[h]);
     source_[h] = DepthSource::kBorder;
     layer_[h] = 0;
   };

@@ -7,6 +7,7 @@
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #if defined(__SSE2__)
 #include <emmintrin.h>
@@ -159,6 +160,54 @@ bool SmoothNormal(const Eigen::Vector3d& n0, const Eigen::Vector3d& n1, const Ei
   normal /= length;
   return true;
 }
+
+// Stage 3 for one border point p (method.md): its crossings x_i, with the
+// penetrated surface's unit normals n_i there, weighted w_i = 1 / |x_i - p|^2,
+// give d(p) = sum w_i (x_i - p).n_i / sum w_i (at least 0) and
+// r(p) = normalise(sum w_i n_i). A crossing closer to p than `on_surface`
+// puts p on the surface: depth 0 and the nearest crossing's normal, which is
+// also the direction where the weighted normals cancel.
+class BorderPointSums {
+ public:
+  explicit BorderPointSums(double on_surface) : on_surface_(on_surface) {}
+  // a crossing at p + to_crossing, where the surface's normal is `normal`
+  void Add(const Eigen::Vector3d& to_crossing, const Eigen::Vector3d& normal) {
+    const double distance = to_crossing.norm();
+    if (distance < nearest_distance_) {
+      nearest_distance_ = distance;
+      nearest_normal_ = normal;
+    }
+    any_ = true;
+    if (distance < on_surface_) return;
+    const double w = 1.0 / (distance * distance);
+    weight_sum_ += w;
+    depth_sum_ += w * to_crossing.dot(normal);
+    normal_sum_ += w * normal;
+  }
+  // whether a crossing was added: p is a border point
+  bool any() const { return any_; }
+  void Result(double& depth, Eigen::Vector3d& direction) const {
+    if (nearest_distance_ < on_surface_ || weight_sum_ == 0.0) {
+      depth = 0.0;
+      direction = nearest_normal_;
+      return;
+    }
+    depth = std::max(0.0, depth_sum_ / weight_sum_);
+    const double normal_length = normal_sum_.norm();
+    direction = normal_length > kCancelledNormal * weight_sum_
+                    ? Eigen::Vector3d(normal_sum_ / normal_length)
+                    : nearest_normal_;
+  }
+
+ private:
+  double on_surface_;
+  double weight_sum_ = 0.0;
+  double depth_sum_ = 0.0;
+  Eigen::Vector3d normal_sum_ = Eigen::Vector3d::Zero();
+  Eigen::Vector3d nearest_normal_ = Eigen::Vector3d::Zero();
+  double nearest_distance_ = std::numeric_limits<double>::infinity();
+  bool any_ = false;
+};
 
 // The squared distance from p to the box [lo, hi] (0 inside it).
 [[gnu::always_inline]] inline double BoxDistance2(const Eigen::Vector3d& lo,

@@ -118,6 +118,91 @@ bool HeightFieldPenetration(const GeomShape& shape, const Eigen::Vector3d& p, do
   return true;
 }
 
+// The part [t_in, t_out] of the line o + t d inside a solid, and which of
+// the solid's surfaces the line enters through (`face`: a shape's own
+// numbering). Empty where t_in > t_out.
+struct Interval {
+  double t_in = -std::numeric_limits<double>::infinity();
+  double t_out = std::numeric_limits<double>::infinity();
+  int face = -1;
+};
+
+// the line inside both a and b (a convex solid's constraints together)
+Interval Intersect(const Interval& a, const Interval& b) {
+  Interval both = b.t_in > a.t_in ? b : a;
+  both.t_out = std::min(a.t_out, b.t_out);
+  return both;
+}
+
+// where a t^2 + b t + c <= 0, a > 0 (empty if never)
+Interval QuadraticInterval(double a, double b, double c, int face) {
+  Interval inside;
+  inside.face = face;
+  const double discriminant = b * b - 4.0 * a * c;
+  if (!(a > 0.0) || !(discriminant >= 0.0)) {
+    inside.t_in = std::numeric_limits<double>::infinity();
+    inside.t_out = -std::numeric_limits<double>::infinity();
+    return inside;
+  }
+  // (the root of the larger magnitude first, without cancellation)
+  const double q = -0.5 * (b + std::copysign(std::sqrt(discriminant), b));
+  double t0 = q / a;
+  double t1 = q != 0.0 ? c / q : t0;
+  inside.t_in = std::min(t0, t1);
+  inside.t_out = std::max(t0, t1);
+  return inside;
+}
+
+// the line inside the ball |x - centre| <= r
+Interval BallInterval(const Eigen::Vector3d& o, const Eigen::Vector3d& d,
+                      const Eigen::Vector3d& centre, double r, int face) {
+  const Eigen::Vector3d c = o - centre;
+  return QuadraticInterval(d.squaredNorm(), 2.0 * c.dot(d), c.squaredNorm() - r * r, face);
+}
+
+// the line inside the infinite cylinder x^2 + y^2 <= r^2 (the z axis)
+Interval RoundInterval(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double r, int face) {
+  const double a = d.x() * d.x() + d.y() * d.y();
+  const double c = o.x() * o.x() + o.y() * o.y() - r * r;
+  if (a == 0.0) {  // (along the axis: inside throughout, or never)
+    Interval inside;
+    inside.face = face;
+    if (c > 0.0) std::swap(inside.t_in, inside.t_out);
+    return inside;
+  }
+  return QuadraticInterval(a, 2.0 * (o.x() * d.x() + o.y() * d.y()), c, face);
+}
+
+// the line inside the half-space n . x <= offset
+Interval HalfSpaceInterval(const Eigen::Vector3d& o, const Eigen::Vector3d& d,
+                           const Eigen::Vector3d& n, double offset, int face) {
+  Interval inside;
+  inside.face = face;
+  const double height = n.dot(o) - offset;
+  const double rate = n.dot(d);
+  if (rate < 0.0) {
+    inside.t_in = -height / rate;
+  } else if (rate > 0.0) {
+    inside.t_out = -height / rate;
+  } else if (height > 0.0) {
+    std::swap(inside.t_in, inside.t_out);
+  }
+  return inside;
+}
+
+// the line inside the slab |x_axis| <= half (faces 2 axis and 2 axis + 1:
+// the slab's low and high sides)
+Interval SlabInterval(const Eigen::Vector3d& o, const Eigen::Vector3d& d, int axis, double half) {
+  const Eigen::Vector3d e = Eigen::Vector3d::Unit(axis);
+  return Intersect(HalfSpaceInterval(o, d, -e, half, 2 * axis),
+                   HalfSpaceInterval(o, d, e, half, 2 * axis + 1));
+}
+
+// the outward normal of a slab's face (SlabInterval's numbering)
+Eigen::Vector3d SlabNormal(int face) {
+  return Eigen::Vector3d::Unit(face / 2) * (face % 2 == 0 ? -1.0 : 1.0);
+}
+
 }  // namespace
 
 GeomShape MakeGeomShape(const mjModel* m, int geom, const std::string& where) {
@@ -276,6 +361,95 @@ bool GeomPenetration(const GeomShape& shape, const Eigen::Vector3d& p, double& d
     default:
       return false;
   }
+}
+
+bool GeomEntry(const GeomShape& shape, const Eigen::Vector3d& outside,
+               const Eigen::Vector3d& inside, double& t, Eigen::Vector3d& normal) {
+  const double* size = shape.size;
+  const Eigen::Vector3d& o = outside;
+  const Eigen::Vector3d d = inside - outside;
+  Interval line;
+  switch (shape.type) {
+    case mjGEOM_PLANE:
+      line = HalfSpaceInterval(o, d, Eigen::Vector3d::UnitZ(), 0.0, 0);
+      break;
+    case mjGEOM_SPHERE:
+      line = BallInterval(o, d, Eigen::Vector3d::Zero(), size[0], 0);
+      break;
+    case mjGEOM_ELLIPSOID: {
+      // the unit ball in coordinates scaled by the radii (t is the same)
+      const Eigen::Vector3d radii(size[0], size[1], size[2]);
+      line = BallInterval(o.cwiseQuotient(radii), d.cwiseQuotient(radii), Eigen::Vector3d::Zero(),
+                          1.0, 0);
+      break;
+    }
+    case mjGEOM_CAPSULE: {
+      // the union of a cylinder and two balls: the earliest entry of those
+      // the line meets
+      const Interval pieces[3] = {
+          Intersect(RoundInterval(o, d, size[0], 0), SlabInterval(o, d, 2, size[1])),
+          BallInterval(o, d, Eigen::Vector3d(0.0, 0.0, size[1]), size[0], 0),
+          BallInterval(o, d, Eigen::Vector3d(0.0, 0.0, -size[1]), size[0], 0)};
+      line.t_in = std::numeric_limits<double>::infinity();
+      line.t_out = -std::numeric_limits<double>::infinity();
+      for (const Interval& piece : pieces) {
+        if (piece.t_in > piece.t_out || piece.t_out < 0.0 || piece.t_in > 1.0) continue;
+        line.t_in = std::min(line.t_in, piece.t_in);
+        line.t_out = std::max(line.t_out, piece.t_out);
+      }
+      line.face = 0;
+      break;
+    }
+    case mjGEOM_BOX:
+      line = Intersect(Intersect(SlabInterval(o, d, 0, size[0]), SlabInterval(o, d, 1, size[1])),
+                       SlabInterval(o, d, 2, size[2]));
+      break;
+    case mjGEOM_CYLINDER:
+      // (face 6: the round side; 4 and 5: the caps)
+      line = Intersect(RoundInterval(o, d, size[0], 6), SlabInterval(o, d, 2, size[1]));
+      break;
+    case mjGEOM_MESH:
+      for (size_t f = 0; f < shape.plane_normal.size(); ++f) {
+        line = Intersect(line, HalfSpaceInterval(o, d, shape.plane_normal[f], shape.plane_offset[f],
+                                                 static_cast<int>(f)));
+      }
+      break;
+    default:  // (a height field: not sought)
+      return false;
+  }
+  if (!(line.t_in <= line.t_out) || line.t_out < 0.0 || line.t_in > 1.0 || line.face < 0) {
+    return false;
+  }
+  t = std::clamp(line.t_in, 0.0, 1.0);
+  const Eigen::Vector3d x = o + t * d;
+  switch (shape.type) {
+    case mjGEOM_PLANE:
+      normal = Eigen::Vector3d::UnitZ();
+      break;
+    case mjGEOM_SPHERE:
+      normal = x;
+      break;
+    case mjGEOM_ELLIPSOID:
+      normal =
+          x.cwiseQuotient(Eigen::Vector3d(size[0] * size[0], size[1] * size[1], size[2] * size[2]));
+      break;
+    case mjGEOM_CAPSULE:
+      normal = x - Eigen::Vector3d(0.0, 0.0, std::clamp(x.z(), -size[1], size[1]));
+      break;
+    case mjGEOM_BOX:
+      normal = SlabNormal(line.face);
+      break;
+    case mjGEOM_CYLINDER:
+      normal = line.face == 6 ? Eigen::Vector3d(x.x(), x.y(), 0.0) : SlabNormal(line.face);
+      break;
+    default:  // mesh
+      normal = shape.plane_normal[line.face];
+      break;
+  }
+  const double length = normal.norm();
+  if (!(length > 0.0)) return false;
+  normal /= length;
+  return true;
 }
 
 }  // namespace tetcosim

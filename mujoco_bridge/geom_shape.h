@@ -56,6 +56,17 @@ GeomShape MakeGeomShape(const mjModel_* m, int geom, const std::string& where);
 bool GeomPenetration(const GeomShape& shape, const Eigen::Vector3d& p, double& depth,
                      Eigen::Vector3d& direction);
 
+// Where the segment from `outside` to `inside` (geom frame; `inside` a
+// point GeomPenetration finds inside) enters the shape: the point
+// outside + t (inside - outside), t in [0, 1], and the shape's outward unit
+// normal there. The stage 2 crossing of the consistent method
+// (collision/shape_depth.h): every shape but the height field is convex, so
+// the segment enters it once, and that crossing is the nearest to
+// `outside`. False where none is found (`inside` on the surface within
+// rounding; a height field, whose crossings are not sought).
+bool GeomEntry(const GeomShape& shape, const Eigen::Vector3d& outside,
+               const Eigen::Vector3d& inside, double& t, Eigen::Vector3d& normal);
+
 // The nearest point of the ellipsoid x^2/a^2 + y^2/b^2 + z^2/c^2 = 1
 // (radii = a, b, c > 0) to p, a point inside it or on it, and the outward
 // unit normal there. Where two points are nearest (p on a plane of

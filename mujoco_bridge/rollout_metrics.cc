@@ -233,7 +233,6 @@ RolloutSummary RolloutMetrics::Summarize(World& world) const {
   // exact interpenetration of the current state, deepest per pair; a static
   // body's centre is where the pair's points are
   std::map<std::pair<int, int>, double> deepest;
-  std::map<std::pair<int, int>, double> deepest_mesh;  // points the depth method resolves
   std::map<std::pair<int, int>, Eigen::Vector3d> anchor;
   double depth_sum = 0.0;
   for (const Interpenetration& point : world.MeasureInterpenetration()) {
@@ -245,10 +244,6 @@ RolloutSummary RolloutMetrics::Summarize(World& world) const {
                                    std::max(point.inside, point.penetrated));
     double& depth = deepest[pair];
     depth = std::max(depth, point.depth);
-    if (!point.signed_distance) {
-      double& mesh_depth = deepest_mesh[pair];
-      mesh_depth = std::max(mesh_depth, point.depth);
-    }
     anchor.emplace(pair, point.point);
   }
   if (s.residual_points > 0) s.residual_mean_depth = depth_sum / s.residual_points;
@@ -282,13 +277,8 @@ RolloutSummary RolloutMetrics::Summarize(World& world) const {
           d.norm() > 0.0 ? (CenterVelocity(world, pair.first) - CenterVelocity(world, pair.second))
                                .dot(d.normalized())
                          : 0.0;
-      // only mesh points can be held by inconsistent depths: a geom's
-      // signed distance always pushes out
-      auto mesh = deepest_mesh.find(pair);
-      const bool by_mesh =
-          mesh != deepest_mesh.end() && mesh->second > options_.sticking_fraction * soft_thickness;
-      if (by_mesh && std::abs(separation_speed) < options_.rest_speed) {
-        AddEvent(world, "sticking", pair.first, pair.second, mesh->second,
+      if (std::abs(separation_speed) < options_.rest_speed) {
+        AddEvent(world, "sticking", pair.first, pair.second, depth,
                  options_.sticking_fraction * soft_thickness, s.events);
         ++s.sticking_pairs;
       }

@@ -22,10 +22,10 @@
 //   rigid body: the deformable's, since a penalty contact's resting depth
 //   scales with the soft side) while at rest relative
 //   to each other: the distance between their centres changes slower than
-//   rest_speed (a stuck pair may still drift or spin as one). Only points
-//   inside tetrahedral meshes count (deformables, proxies): a geom's signed
-//   distance always pushes out and cannot hold anything. Deep pairs that are
-//   still moving, or deep only in geoms (a soft contact under load),
+//   rest_speed (a stuck pair may still drift or spin as one). Points inside
+//   geoms count as those inside meshes: a geom's signed distance (the
+//   closest feature) holds a body stuck inside a thin one as a mesh's does
+//   (tests/scenarios/thin_wall_test.cc). Deep pairs that are still moving
 //   are counted in interpenetrating_pairs.
 // depths here are exact (World::MeasureInterpenetration: distance to the
 //   penetrated surface), so both depth methods are judged by the same ruler.
@@ -33,8 +33,8 @@
 //   vertices joined by a mesh edge, inside the same object, over all steps.
 // temporal continuity: the change of a colliding vertex's direction from one
 //   step to the next (same vertex, same penetrated object): max and mean.
-// Spatial and temporal figures use the depth method's own directions (mesh
-// contacts only; geoms use their signed distances either way).
+// Spatial and temporal figures use the depth method's own directions, of
+// the points inside meshes (deformables, proxies) only.
 
 #include <Eigen/Core>
 #include <map>

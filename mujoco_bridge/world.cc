@@ -1084,6 +1084,7 @@ void World::UpdateProxies() {
 }
 
 void World::ForEachGeomPenetration(
+    bool consistent,
     const std::function<void(int, int, int, double, const Eigen::Vector3d&)>& visit) {
   const mjModel* m = model_;
   // each deformable's box: a geom that cannot reach it is passed over
@@ -1107,6 +1108,24 @@ void World::ForEachGeomPenetration(
       x_g = moved * x_g;
       R_g = moved.linear() * R_g;
     }
+    // stage 2 of the consistent method: where an edge enters the geom (one
+    // pointer captured: std::function keeps it without allocating)
+    struct Placed {
+      const GeomShape& shape;
+      const Eigen::Vector3d& x_g;
+      const Eigen::Matrix3d& R_g;
+    } placed{shape, x_g, R_g};
+    const ShapeCrossing crossing = [&placed](const Eigen::Vector3d& outside,
+                                             const Eigen::Vector3d& inside, Eigen::Vector3d& at,
+                                             Eigen::Vector3d& normal) {
+      const Eigen::Vector3d o = placed.R_g.transpose() * (outside - placed.x_g);
+      const Eigen::Vector3d in = placed.R_g.transpose() * (inside - placed.x_g);
+      double t = 0.0;
+      if (!GeomEntry(placed.shape, o, in, t, normal)) return false;
+      at = placed.x_g + placed.R_g * (o + t * (in - o));
+      normal = placed.R_g * normal;
+      return true;
+    };
     // (MuJoCo 2.2.2 gives planes and height fields no bounding radius)
     const bool bounded = shape.type != mjGEOM_PLANE && shape.type != mjGEOM_HFIELD;
     const double reach = bounded ? m->geom_rbound[g] : HeightFieldRadius(shape);
@@ -1123,13 +1142,27 @@ void World::ForEachGeomPenetration(
         if (gap.norm() > reach + kGeomCullMargin) continue;
       }
       const DeformableBody& deformable = *bodies_[i];
+      std::vector<ShapePoint>& points = geom_points_;
+      points.clear();
       for (int v = 0; v < deformable.num_vertices(); ++v) {
         Eigen::Vector3d p = deformable.positions().row(v).transpose();
         if (bounded && (p - x_g).norm() > m->geom_rbound[g]) continue;
-        double depth = 0.0;
-        Eigen::Vector3d direction;
-        if (!GeomPenetration(shape, R_g.transpose() * (p - x_g), depth, direction)) continue;
-        visit(static_cast<int>(i), v, g, depth, R_g * direction);
+        ShapePoint point;
+        point.vertex = v;
+        if (!GeomPenetration(shape, R_g.transpose() * (p - x_g), point.depth, point.direction)) {
+          continue;
+        }
+        point.direction = R_g * point.direction;
+        points.push_back(point);
+      }
+      // The consistent method's depths where it differs from the signed
+      // distance: not on a plane (every crossing lies in it, so both give
+      // the distance below it) nor a height field (pushed up only)
+      if (consistent && shape.type != mjGEOM_PLANE && shape.type != mjGEOM_HFIELD) {
+        geom_depth_.Solve(deformable.mesh(), deformable.positions(), points, crossing);
+      }
+      for (const ShapePoint& point : points) {
+        visit(static_cast<int>(i), point.vertex, g, point.depth, point.direction);
       }
     }
   }
@@ -1137,7 +1170,9 @@ void World::ForEachGeomPenetration(
 
 void World::AddGeomContacts(double dt) {
   const mjModel* m = model_;
-  ForEachGeomPenetration([&](int i, int v, int g, double depth, const Eigen::Vector3d& direction) {
+  const bool consistent = solver_.options().method == DepthMethod::kConsistent;
+  ForEachGeomPenetration(consistent, [&](int i, int v, int g, double depth,
+                                         const Eigen::Vector3d& direction) {
     const int body = m->geom_bodyid[g];
     const DeformableBody& deformable = *bodies_[i];
     Eigen::Vector3d p = deformable.positions().row(v).transpose();
@@ -1239,9 +1274,9 @@ std::vector<Interpenetration> World::MeasureInterpenetration() {
                       objects_[r.object].positions->row(r.vertex).transpose()});
   }
   const int num_deformables = static_cast<int>(bodies_.size());
-  ForEachGeomPenetration([&](int i, int v, int g, double depth, const Eigen::Vector3d&) {
+  ForEachGeomPenetration(false, [&](int i, int v, int g, double depth, const Eigen::Vector3d&) {
     points.push_back({i, num_deformables + model_->geom_bodyid[g], depth,
-                      bodies_[i]->positions().row(v).transpose(), true});
+                      bodies_[i]->positions().row(v).transpose()});
   });
   return points;
 }

@@ -6,8 +6,9 @@
 //   2. rigid proxies follow their bodies (xpos, xmat); rigid point
 //      velocities from mj_objectVelocity;
 //   3. collision: consistent (or closest-feature) penetration depth between
-//      deformables and proxies, signed distance to the other geoms
-//      (geom_shape.h);
+//      deformables and proxies, and between deformables and the other geoms
+//      (collision/shape_depth.h with geom_shape.h; their signed distance
+//      for the closest-feature method);
 //   4. the deformables advance by dt (or substeps) in one coupled implicit
 //      solve, with the MuJoCo trees in contact as unknowns of it too
 //      (RigidSystem), which yields the contact forces actually integrated;
@@ -30,6 +31,7 @@
 #include <vector>
 
 #include "collision/penetration.h"
+#include "collision/shape_depth.h"
 #include "deformable/coupled_step.h"
 #include "deformable/deformable_body.h"
 #include "mujoco_bridge/geom_shape.h"
@@ -58,7 +60,6 @@ struct Interpenetration {
   int penetrated = -1;  // the object it is inside
   double depth = 0.0;   // m: distance to the penetrated object's surface
   Eigen::Vector3d point = Eigen::Vector3d::Zero();  // world frame
-  bool signed_distance = false;                     // inside a geom without a proxy
 };
 
 // Per-step figures (the last Step()).
@@ -154,7 +155,7 @@ class World {
   const std::vector<ContactPoint>& contacts() const { return contacts_; }
   // The penetration results of the last step (its start state); they are the
   // first penetrations().size() entries of contacts(), in the same order;
-  // contacts with geoms (by signed distance) follow.
+  // contacts with geoms without proxies follow.
   const std::vector<PenetrationResult>& penetrations() const { return solver_.results(); }
   // The MuJoCo trees solved with the last step's deformables (RigidSystem,
   // coupled_step.h; empty with <solver rigid="explicit">), each by its root
@@ -167,7 +168,7 @@ class World {
   // proxies; PenetrationResult::object indexes this.
   const std::vector<CollisionObject>& collision_objects() const { return objects_; }
   int num_proxies() const { return static_cast<int>(proxies_.size()); }
-  // The geoms deformables meet by signed distance (geom_shape.h), in geom
+  // The geoms deformables meet without proxies (geom_shape.h), in geom
   // order: its name ("rock", or "#3 of body 'arm'" for one without) and
   // how it is met ("plane", "mesh: convex hull of 14 planes", "height field
   // 41 x 41").
@@ -217,8 +218,11 @@ class World {
   void AddGeomContacts(double dt);
   void BuildCollisionObjects();
   // calls visit(deformable, vertex, geom, depth, direction out of the geom)
-  // for every deformable vertex inside a geom without a proxy (geom_shape.h)
+  // for every deformable vertex inside a geom without a proxy (geom_shape.h):
+  // the consistent method's depth and direction (collision/shape_depth.h),
+  // or with `consistent` false, the signed distance's (the closest feature)
   void ForEachGeomPenetration(
+      bool consistent,
       const std::function<void(int, int, int, double, const Eigen::Vector3d&)>& visit);
   // Before a step: where the reactions of the contacts with MuJoCo bodies,
   // then of the pins, will act (reaction_points_).
@@ -271,7 +275,9 @@ class World {
   std::vector<std::vector<int>> attach_bodies_;  // per deformable: the body of each pin frame
   std::vector<std::unique_ptr<Proxy>> proxies_;
   std::vector<char> geom_has_proxy_;
-  std::vector<std::pair<int, GeomShape>> geom_shapes_;      // (geom, its shape): geoms met by shape
+  std::vector<std::pair<int, GeomShape>> geom_shapes_;  // (geom, its shape): geoms met by shape
+  ShapeDepthSolver geom_depth_;                         // the consistent method against geoms
+  std::vector<ShapePoint> geom_points_;                 // a deformable's vertices inside one geom
   std::vector<Eigen::Vector3d> geom_box_lo_, geom_box_hi_;  // per deformable (scratch)
   PenetrationSolver solver_;
   PenetrationSolver exact_solver_;  // closest-feature, for MeasureInterpenetration

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <functional>
 #include <memory>
 #include <random>
 #include <sstream>
@@ -94,49 +95,103 @@ std::string ConvexGeoms() {
 </mujoco>)";
 }
 
+// Calls check(compiled, geom, its shape, a random generator seeded with
+// `seed`) for each geom of ConvexGeoms().
+void ForEachConvexGeom(
+    unsigned seed,
+    const std::function<void(const Compiled*, int, const GeomShape&, std::mt19937&)>& check) {
+  TempDir dir("tetcosim_geom_shape");
+  std::unique_ptr<Compiled> compiled = Compile(dir, ConvexGeoms());
+  ASSERT_NE(compiled, nullptr);
+  const mjModel* m = compiled->m;
+  std::mt19937 rng(seed);
+  for (int g = 0; g < m->ngeom; ++g) {
+    SCOPED_TRACE(mj_id2name(m, mjOBJ_GEOM, g));
+    ASSERT_GT(m->geom_rbound[g], 0.0);
+    check(compiled.get(), g, MakeGeomShape(m, g, "geom"), rng);
+  }
+}
+
 // Oracles, MuJoCo's rays (mj_ray) from the point: inside a convex geom every
 // ray from p meets its surface, and none nearer than the depth; the one
 // along the direction meets it at the depth. Outside one, a separating
 // plane turns half of all rays away: one of 32 misses but with odds 2^-32.
 TEST(GeomShape, DepthIsTheNearestWayOutOfEveryConvexGeom) {
-  TempDir dir("tetcosim_geom_shape");
-  std::unique_ptr<Compiled> compiled = Compile(dir, ConvexGeoms());
-  ASSERT_NE(compiled, nullptr);
-  const mjModel* m = compiled->m;
-  std::mt19937 rng(11);
-  for (int g = 0; g < m->ngeom; ++g) {
-    SCOPED_TRACE(mj_id2name(m, mjOBJ_GEOM, g));
-    const GeomShape shape = MakeGeomShape(m, g, "geom");
-    const double bound = m->geom_rbound[g];
-    ASSERT_GT(bound, 0.0);
+  ForEachConvexGeom(
+      11, [](const Compiled* compiled, int g, const GeomShape& shape, std::mt19937& rng) {
+        const double bound = compiled->m->geom_rbound[g];
+        const double tolerance = 1e-9 * bound;
+        std::uniform_real_distribution<double> coordinate(-bound, bound);
+        std::vector<Eigen::Vector3d> directions(32);
+        for (Eigen::Vector3d& u : directions) u = RandomDirection(rng);
+        int inside = 0, outside = 0;
+        while (inside < 300 || outside < 100) {
+          const Eigen::Vector3d p(coordinate(rng), coordinate(rng), coordinate(rng));
+          double depth = -1.0;
+          Eigen::Vector3d direction = Eigen::Vector3d::Zero();
+          if (GeomPenetration(shape, p, depth, direction)) {
+            ++inside;
+            ASSERT_GT(depth, 0.0);
+            ASSERT_NEAR(direction.norm(), 1.0, 1e-12);
+            ASSERT_NEAR(compiled->Ray(g, p, direction), depth, tolerance)
+                << "at " << p.transpose() << ", the way out " << direction.transpose();
+            for (const Eigen::Vector3d& u : directions) {
+              const double distance = compiled->Ray(g, p, u);
+              ASSERT_GE(distance, depth - tolerance)
+                  << "at " << p.transpose() << " along " << u.transpose() << ": a nearer surface";
+            }
+          } else {
+            ++outside;
+            bool missed = false;
+            for (const Eigen::Vector3d& u : directions) missed |= compiled->Ray(g, p, u) < 0.0;
+            ASSERT_TRUE(missed) << p.transpose() << " is inside, every ray meets the geom";
+          }
+        }
+      });
+}
+
+// Oracles for the consistent method's crossing (GeomEntry): MuJoCo's ray
+// from the outside point toward the inside one meets the geom where the
+// crossing is, and the normal there is the way out of a plane that
+// supports the geom (every point found inside is on its inner side).
+TEST(GeomShape, EntryIsWhereMuJoCosRayMeetsTheGeom) {
+  ForEachConvexGeom(13, [](const Compiled* compiled, int g, const GeomShape& shape,
+                           std::mt19937& rng) {
+    const double bound = compiled->m->geom_rbound[g];
     const double tolerance = 1e-9 * bound;
     std::uniform_real_distribution<double> coordinate(-bound, bound);
-    std::vector<Eigen::Vector3d> directions(32);
-    for (Eigen::Vector3d& u : directions) u = RandomDirection(rng);
-    int inside = 0, outside = 0;
-    while (inside < 300 || outside < 100) {
+    std::vector<Eigen::Vector3d> inside, outside;
+    while (inside.size() < 200 || outside.size() < 200) {
       const Eigen::Vector3d p(coordinate(rng), coordinate(rng), coordinate(rng));
-      double depth = -1.0;
-      Eigen::Vector3d direction = Eigen::Vector3d::Zero();
-      if (GeomPenetration(shape, p, depth, direction)) {
-        ++inside;
-        ASSERT_GT(depth, 0.0);
-        ASSERT_NEAR(direction.norm(), 1.0, 1e-12);
-        ASSERT_NEAR(compiled->Ray(g, p, direction), depth, tolerance)
-            << "at " << p.transpose() << ", the way out " << direction.transpose();
-        for (const Eigen::Vector3d& u : directions) {
-          const double distance = compiled->Ray(g, p, u);
-          ASSERT_GE(distance, depth - tolerance)
-              << "at " << p.transpose() << " along " << u.transpose() << ": a nearer surface";
-        }
-      } else {
-        ++outside;
-        bool missed = false;
-        for (const Eigen::Vector3d& u : directions) missed |= compiled->Ray(g, p, u) < 0.0;
-        ASSERT_TRUE(missed) << p.transpose() << " is inside, every ray meets the geom";
+      double depth;
+      Eigen::Vector3d direction;
+      (GeomPenetration(shape, p, depth, direction) ? inside : outside).push_back(p);
+    }
+    for (size_t k = 0; k < 200; ++k) {
+      // pairs near each other too: an edge's length, a tenth of the geom
+      const Eigen::Vector3d& p = inside[k];
+      const Eigen::Vector3d q =
+          k % 2 == 0 ? outside[k] : Eigen::Vector3d(p + 0.1 * bound * RandomDirection(rng));
+      double depth;
+      Eigen::Vector3d direction;
+      if (GeomPenetration(shape, q, depth, direction)) continue;
+      double t = -1.0;
+      Eigen::Vector3d normal = Eigen::Vector3d::Zero();
+      ASSERT_TRUE(GeomEntry(shape, q, p, t, normal)) << q.transpose() << " to " << p.transpose();
+      ASSERT_GE(t, 0.0);
+      ASSERT_LE(t, 1.0);
+      const double length = (p - q).norm();
+      ASSERT_NEAR(compiled->Ray(g, q, (p - q) / length), t * length, tolerance)
+          << q.transpose() << " to " << p.transpose();
+      ASSERT_NEAR(normal.norm(), 1.0, 1e-12);
+      const Eigen::Vector3d x = q + t * (p - q);
+      for (const Eigen::Vector3d& y : inside) {
+        ASSERT_LE(normal.dot(y - x), tolerance)
+            << "the plane at " << x.transpose() << " with normal " << normal.transpose()
+            << " cuts the geom at " << y.transpose();
       }
     }
-  }
+  });
 }
 
 // The hull's planes support the mesh: each touches it (its farthest
@@ -343,7 +398,7 @@ TEST(GeomShape, CubesMeetMeshesHeightFieldsAndEllipsoidsAsThePrimitivesTheyEqual
 }
 
 // The bundled terrain scene: soft bodies dropped on a height field, a
-// convex mesh and a loose ellipsoid, all met by signed distance. After a
+// convex mesh and a loose ellipsoid, all met without proxies. After a
 // second no vertex lies deeper than 2 mm below the highest geom surface
 // over it (MuJoCo's ray from above: nothing fell through), and every body
 // has come down onto something.

@@ -94,23 +94,40 @@ TEST(RolloutMetrics, FallingThroughTheFloorIsAPassThrough) {
   EXPECT_EQ(bounce.Summarize().pass_through_pairs, 0);
 }
 
-TEST(RolloutMetrics, DeepInAPrimitiveGeomIsNotSticking) {
+// A cube left 2 cm deep in the floor with next to no contact stiffness,
+// at rest: sticking, whether the floor is a geom (met by its signed
+// distance or the consistent method's crossings) or a mesh (a proxy). A
+// geom holds a body stuck inside a thin one as a mesh does
+// (tests/scenarios/thin_wall_test.cc).
+TEST(RolloutMetrics, DeepInAGeomOrAMeshAtRestIsSticking) {
   TempDir dir("tetcosim_metrics");
-  // a cube 2 cm into the floor at rest: deep, but a signed distance always
-  // pushes out, so it is counted as interpenetrating, not as sticking
-  Scenario scenario(dir.Write("sunk.xml", R"(<mujoco>
+  const char* scene = R"(<mujoco>
   <option gravity="0 0 0"/>
-  <worldbody><geom name="floor" type="plane" size="1 1 0.1"/></worldbody>
+  <worldbody><body name="ground"><geom name="ground" type="%s" pos="0 0 %s" size="1 1 0.05"/></body></worldbody>
   <deformable>
     <contact stiffness="1e-6"/>
     <tetbody name="cube" shape="box" size="0.05 0.05 0.05" resolution="3 3 3" pos="0 0 0.03"/>
+    %s
   </deformable>
-</mujoco>)"));
-  RolloutSummary s = scenario.Summarize();
-  EXPECT_NEAR(s.residual_max_depth, 0.02, 1e-12);
-  EXPECT_EQ(s.interpenetrating_pairs, 1);
-  EXPECT_EQ(s.sticking_pairs, 0);
-  EXPECT_EQ(s.pass_through_pairs, 0);
+</mujoco>)";
+  struct Floor {
+    const char* type;
+    const char* height;  // of the geom's centre: its top at 0
+    const char* proxy;
+  };
+  for (const Floor& floor :
+       {Floor{"plane", "0", ""}, Floor{"box", "-0.05", ""},
+        Floor{"box", "-0.05", "<rigidtet body='ground' geom='ground' resolution='8'/>"}}) {
+    SCOPED_TRACE(std::string(floor.type) + " " + floor.proxy);
+    char text[1000];
+    std::snprintf(text, sizeof(text), scene, floor.type, floor.height, floor.proxy);
+    Scenario scenario(dir.Write("sunk.xml", text));
+    RolloutSummary s = scenario.Summarize();
+    EXPECT_NEAR(s.residual_max_depth, 0.02, 1e-9);
+    EXPECT_EQ(s.interpenetrating_pairs, 1);
+    EXPECT_EQ(s.sticking_pairs, 1);
+    EXPECT_EQ(s.pass_through_pairs, 0);
+  }
 }
 
 // spatial and temporal figures of every step against a brute-force count over

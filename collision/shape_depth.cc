@@ -1,0 +1,108 @@
+#include "collision/shape_depth.h"
+
+#include <algorithm>
+
+#include "collision/geometry.h"
+
+namespace tetcosim {
+
+void ShapeDepthSolver::Solve(const TetMesh& mesh, const Positions& x, std::span<ShapePoint> points,
+                             const ShapeCrossing& crossing) {
+  const int num_points = static_cast<int>(points.size());
+  if (num_points == 0) return;
+  if (point_of_.size() != static_cast<size_t>(mesh.num_vertices())) {
+    point_of_.assign(mesh.num_vertices(), -1);
+  }
+  for (int k = 0; k < num_points; ++k) point_of_[points[k].vertex] = k;
+  layer_.assign(num_points, -1);
+  const std::vector<int>& offsets = mesh.adjacency_offsets();
+  const std::vector<int>& adjacency = mesh.adjacency();
+  // closer than this, two points are one (a crossing at p: p on the
+  // surface, depth 0), as in the penetration solver
+  const double coincident = 1e-9 * mesh.average_edge_length();
+
+  // stages 2 and 3: border points from their intersection edges
+  for (int k = 0; k < num_points; ++k) {
+    const int v = points[k].vertex;
+    const Eigen::Vector3d p = x.row(v).transpose();
+    BorderPointSums sums(coincident);
+    for (int n = offsets[v]; n < offsets[v + 1]; ++n) {
+      const int q = adjacency[n];
+      if (point_of_[q] >= 0) continue;  // (inside too: not an intersection edge)
+      Eigen::Vector3d at, normal;
+      if (crossing(x.row(q).transpose(), p, at, normal)) sums.Add(at - p, normal);
+    }
+    if (!sums.any()) continue;
+    ShapePoint& point = points[k];
+    sums.Result(point.depth, point.direction);
+    point.source = DepthSource::kBorder;
+    layer_[k] = 0;
+  }
+
+  // stage 4: the points next to those with a value, layer by layer
+  auto next_layer = [&] {
+    frontier_.clear();
+    for (int k = 0; k < num_points; ++k) {
+      if (layer_[k] >= 0) continue;
+      const int v = points[k].vertex;
+      for (int n = offsets[v]; n < offsets[v + 1]; ++n) {
+        const int j = point_of_[adjacency[n]];
+        if (j >= 0 && layer_[j] >= 0) {
+          frontier_.push_back(k);
+          break;
+        }
+      }
+    }
+  };
+  for (int layer = 1;; ++layer) {
+    next_layer();
+    values_.clear();
+    for (int k : frontier_) {
+      const int v = points[k].vertex;
+      const Eigen::Vector3d p = x.row(v).transpose();
+      double weight_sum = 0.0;
+      double depth_sum = 0.0;
+      Eigen::Vector3d direction_sum = Eigen::Vector3d::Zero();
+      int copy_from = -1;
+      for (int n = offsets[v]; n < offsets[v + 1]; ++n) {
+        const int j = point_of_[adjacency[n]];
+        if (j < 0 || layer_[j] < 0) continue;  // (outside, or no value before this layer)
+        const Eigen::Vector3d to_neighbour = x.row(adjacency[n]).transpose() - p;
+        const double distance_sq = to_neighbour.squaredNorm();
+        if (distance_sq < coincident * coincident) {
+          if (copy_from < 0) copy_from = j;
+          continue;
+        }
+        // mu_j = 1 / |p_j - p|^2 (method.md, stage 4)
+        const double mu = 1.0 / distance_sq;
+        weight_sum += mu;
+        depth_sum += mu * (to_neighbour.dot(points[j].direction) + points[j].depth);
+        direction_sum += mu * points[j].direction;
+      }
+      ShapePoint value = points[k];
+      value.source = DepthSource::kPropagated;
+      const double length = direction_sum.norm();
+      if (copy_from >= 0) {
+        value.depth = points[copy_from].depth;
+        value.direction = points[copy_from].direction;
+      } else if (weight_sum > 0.0 && length > 1e-12 * weight_sum) {
+        value.depth = std::max(0.0, depth_sum / weight_sum);
+        value.direction = direction_sum / length;
+      } else {
+        value.source = DepthSource::kFallback;  // (directions that cancel)
+      }
+      values_.push_back(value);
+    }
+    bool any = false;
+    for (size_t i = 0; i < frontier_.size(); ++i) {
+      if (values_[i].source != DepthSource::kPropagated) continue;
+      points[frontier_[i]] = values_[i];
+      layer_[frontier_[i]] = layer;
+      any = true;
+    }
+    if (!any) break;
+  }
+  for (int k = 0; k < num_points; ++k) point_of_[points[k].vertex] = -1;
+}
+
+}  // namespace tetcosim
