@@ -39,23 +39,27 @@ void ShapeDepthSolver::Solve(const TetMesh& mesh, const Positions& x, std::span<
     layer_[k] = 0;
   }
 
-  // stage 4: the points next to those with a value, layer by layer
-  auto next_layer = [&] {
-    frontier_.clear();
-    for (int k = 0; k < num_points; ++k) {
-      if (layer_[k] >= 0) continue;
-      const int v = points[k].vertex;
-      for (int n = offsets[v]; n < offsets[v + 1]; ++n) {
-        const int j = point_of_[adjacency[n]];
-        if (j >= 0 && layer_[j] >= 0) {
-          frontier_.push_back(k);
-          break;
-        }
-      }
+  // stage 4: the points next to those with a value, layer by layer. A
+  // layer is the points without a value next to one that got its value in
+  // the layer before (a point whose neighbours' directions cancelled is
+  // tried again only once another neighbour has a value: nothing else
+  // could change its sums).
+  listed_.assign(num_points, 0);
+  auto list_neighbours = [&](int k, int layer, std::vector<int>& list) {
+    const int v = points[k].vertex;
+    for (int n = offsets[v]; n < offsets[v + 1]; ++n) {
+      const int j = point_of_[adjacency[n]];
+      if (j < 0 || layer_[j] >= 0 || listed_[j] == layer) continue;
+      listed_[j] = layer;
+      list.push_back(j);
     }
   };
-  for (int layer = 1;; ++layer) {
-    next_layer();
+  frontier_.clear();
+  for (int k = 0; k < num_points; ++k) {
+    if (layer_[k] == 0) list_neighbours(k, 1, frontier_);
+  }
+  for (int layer = 1; !frontier_.empty(); ++layer) {
+    std::sort(frontier_.begin(), frontier_.end());
     values_.clear();
     for (int k : frontier_) {
       const int v = points[k].vertex;
@@ -85,7 +89,7 @@ void ShapeDepthSolver::Solve(const TetMesh& mesh, const Positions& x, std::span<
       if (copy_from >= 0) {
         value.depth = points[copy_from].depth;
         value.direction = points[copy_from].direction;
-      } else if (weight_sum > 0.0 && length > 1e-12 * weight_sum) {
+      } else if (weight_sum > 0.0 && length > kCancelledNormal * weight_sum) {
         value.depth = std::max(0.0, depth_sum / weight_sum);
         value.direction = direction_sum / length;
       } else {
@@ -93,14 +97,16 @@ void ShapeDepthSolver::Solve(const TetMesh& mesh, const Positions& x, std::span<
       }
       values_.push_back(value);
     }
-    bool any = false;
     for (size_t i = 0; i < frontier_.size(); ++i) {
       if (values_[i].source != DepthSource::kPropagated) continue;
       points[frontier_[i]] = values_[i];
       layer_[frontier_[i]] = layer;
-      any = true;
     }
-    if (!any) break;
+    next_.clear();
+    for (int k : frontier_) {
+      if (layer_[k] == layer) list_neighbours(k, layer + 1, next_);
+    }
+    std::swap(frontier_, next_);
   }
   for (int k = 0; k < num_points; ++k) point_of_[points[k].vertex] = -1;
 }

@@ -56,7 +56,9 @@ class ShapeDepthSolver {
  private:
   std::vector<int> point_of_;       // per mesh vertex: its index in points, or -1
   std::vector<int> layer_;          // per point: the layer that gave it its value, or -1
-  std::vector<int> frontier_;       // the next layer's points, ascending
+  std::vector<int> frontier_;       // this layer's points (ascending once sorted)
+  std::vector<int> next_;           // the next layer's
+  std::vector<int> listed_;         // per point: the layer it was last listed for
   std::vector<ShapePoint> values_;  // the layer's values, until the layer is done
 };
 
