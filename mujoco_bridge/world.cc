@@ -1083,10 +1083,11 @@ void World::UpdateProxies() {
   }
 }
 
-void World::ForEachGeomPenetration(
+int World::ForEachGeomPenetration(
     bool consistent,
     const std::function<void(int, int, int, double, const Eigen::Vector3d&)>& visit) {
   const mjModel* m = model_;
+  int fallback = 0;
   // each deformable's box: a geom that cannot reach it is passed over
   // whole (a robot's many geoms, most far from any deformable, cost a test
   // each instead of one per vertex)
@@ -1160,38 +1161,41 @@ void World::ForEachGeomPenetration(
       // the distance below it) nor a height field (pushed up only)
       if (consistent && shape.type != mjGEOM_PLANE && shape.type != mjGEOM_HFIELD) {
         geom_depth_.Solve(deformable.mesh(), deformable.positions(), points, crossing);
+        for (const ShapePoint& point : points) fallback += point.source == DepthSource::kFallback;
       }
       for (const ShapePoint& point : points) {
         visit(static_cast<int>(i), point.vertex, g, point.depth, point.direction);
       }
     }
   }
+  return fallback;
 }
 
 void World::AddGeomContacts(double dt) {
   const mjModel* m = model_;
   const bool consistent = solver_.options().method == DepthMethod::kConsistent;
-  ForEachGeomPenetration(consistent, [&](int i, int v, int g, double depth,
-                                         const Eigen::Vector3d& direction) {
-    const int body = m->geom_bodyid[g];
-    const DeformableBody& deformable = *bodies_[i];
-    Eigen::Vector3d p = deformable.positions().row(v).transpose();
-    ContactPoint contact;
-    contact.body_a = i;
-    contact.vertex_a = v;
-    const PointMotion motion = RigidPointMotion(body, p, dt);
-    contact.velocity_b = motion.velocity;
-    contact.arc = -motion.arc;
-    contact.mass_b = body > 0 ? m->body_mass[body] : 0.0;
-    contact.depth = depth;
-    contact.direction = direction;
-    contact.stiffness = kappa_[i] * deformable.model().contact_areas()[v];
-    contact.friction = std::max(friction_[i], m->geom_friction[3 * g]);  // MuJoCo combines by max
-    contact.damping_ratio = damping_[i];
-    contacts_.push_back(contact);
-    contact_rigid_body_.push_back(body);
-    contact_key_.push_back({i, v, -1 - g});
-  });
+  metrics_.fallback_points += ForEachGeomPenetration(
+      consistent, [&](int i, int v, int g, double depth, const Eigen::Vector3d& direction) {
+        const int body = m->geom_bodyid[g];
+        const DeformableBody& deformable = *bodies_[i];
+        Eigen::Vector3d p = deformable.positions().row(v).transpose();
+        ContactPoint contact;
+        contact.body_a = i;
+        contact.vertex_a = v;
+        const PointMotion motion = RigidPointMotion(body, p, dt);
+        contact.velocity_b = motion.velocity;
+        contact.arc = -motion.arc;
+        contact.mass_b = body > 0 ? m->body_mass[body] : 0.0;
+        contact.depth = depth;
+        contact.direction = direction;
+        contact.stiffness = kappa_[i] * deformable.model().contact_areas()[v];
+        contact.friction =
+            std::max(friction_[i], m->geom_friction[3 * g]);  // MuJoCo combines by max
+        contact.damping_ratio = damping_[i];
+        contacts_.push_back(contact);
+        contact_rigid_body_.push_back(body);
+        contact_key_.push_back({i, v, -1 - g});
+      });
 }
 
 // A friction spring is the displacement of A's point from where it stuck on

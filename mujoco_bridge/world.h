@@ -65,7 +65,7 @@ struct Interpenetration {
 // Per-step figures (the last Step()).
 struct StepMetrics {
   int colliding_points = 0;  // penetration results + geom contacts
-  int fallback_points = 0;
+  int fallback_points = 0;   // penetration results + geom contacts (kFallback)
   int unresolved_points = 0;
   double max_depth = 0.0;
   double mean_depth = 0.0;
@@ -220,8 +220,10 @@ class World {
   // calls visit(deformable, vertex, geom, depth, direction out of the geom)
   // for every deformable vertex inside a geom without a proxy (geom_shape.h):
   // the consistent method's depth and direction (collision/shape_depth.h),
-  // or with `consistent` false, the signed distance's (the closest feature)
-  void ForEachGeomPenetration(
+  // or with `consistent` false, the signed distance's (the closest feature).
+  // Returns how many of those points the consistent method did not reach
+  // (given the signed distance instead, as its fallback).
+  int ForEachGeomPenetration(
       bool consistent,
       const std::function<void(int, int, int, double, const Eigen::Vector3d&)>& visit);
   // Before a step: where the reactions of the contacts with MuJoCo bodies,

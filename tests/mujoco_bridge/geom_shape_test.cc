@@ -6,6 +6,7 @@
 #include <Eigen/Geometry>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <cstring>
 #include <functional>
 #include <memory>
@@ -395,6 +396,41 @@ TEST(GeomShape, CubesMeetMeshesHeightFieldsAndEllipsoidsAsThePrimitivesTheyEqual
   EXPECT_NEAR(others->deformable(1).CenterOfMass().z(), 0.1 + 0.03, 1e-3);
   EXPECT_NEAR(others->deformable(2).CenterOfMass().z(), 0.2 + 0.03, 2e-3);
   EXPECT_LT(others->DeformableKineticEnergy(), 1e-6);
+}
+
+// A cube wholly inside a box geom has no edge that crosses the geom's
+// surface: the consistent method reaches none of its vertices, which get
+// the signed distance and are counted as fallback points; a cube half in
+// has none, and the closest-feature method never falls back.
+TEST(GeomShape, PointsTheConsistentMethodDoesNotReachAreCountedAsFallback) {
+  TempDir dir("tetcosim_geom_shape");
+  const char* scene = R"(<mujoco>
+  <option gravity="0 0 0"/>
+  <worldbody><geom name="block" type="box" size="0.5 0.5 0.5"/></worldbody>
+  <deformable>
+    <tetbody name="cube" shape="box" size="0.05 0.05 0.05" resolution="3" pos="0 0 %s"/>
+  </deformable>
+</mujoco>)";
+  struct Case {
+    const char* height;
+    DepthMethod method;
+    bool all_fallback;
+  };
+  for (const Case& c :
+       {Case{"0", DepthMethod::kConsistent, true}, Case{"0.5", DepthMethod::kConsistent, false},
+        Case{"0", DepthMethod::kClosest, false}}) {
+    SCOPED_TRACE(std::string("at z = ") + c.height + ", " + DepthMethodName(c.method));
+    char text[600];
+    std::snprintf(text, sizeof(text), scene, c.height);
+    WorldOptions options;
+    options.method = c.method;
+    std::unique_ptr<World> world = World::Load(dir.Write("inside.xml", text), options);
+    world->Step();
+    const StepMetrics& metrics = world->metrics();
+    const int vertices = world->deformable(0).num_vertices();
+    EXPECT_GT(metrics.colliding_points, 0);
+    EXPECT_EQ(metrics.fallback_points, c.all_fallback ? vertices : 0);
+  }
 }
 
 // The bundled terrain scene: soft bodies dropped on a height field, a
