@@ -209,6 +209,56 @@ class BorderPointSums {
   bool any_ = false;
 };
 
+// Stage 4 for one inner point p (method.md): its neighbours p_j that have
+// values d_j, r_j, weighted mu_j = 1 / |p_j - p|^2, give
+// d(p) = sum mu_j ((p_j - p).r_j + d_j) / sum mu_j (at least 0) and
+// r(p) = normalise(sum mu_j r_j). A neighbour closer to p than `coincident`
+// is the same point: p takes the first such neighbour's values.
+class PropagatedPointSums {
+ public:
+  explicit PropagatedPointSums(double coincident) : coincident_sq_(coincident * coincident) {}
+  // a neighbour at p + to_neighbour with its depth and direction
+  void Add(const Eigen::Vector3d& to_neighbour, double depth, const Eigen::Vector3d& direction) {
+    const double distance_sq = to_neighbour.squaredNorm();
+    if (distance_sq < coincident_sq_) {
+      if (!copied_) {
+        copied_ = true;
+        copied_depth_ = depth;
+        copied_direction_ = direction;
+      }
+      return;
+    }
+    const double mu = 1.0 / distance_sq;
+    weight_sum_ += mu;
+    depth_sum_ += mu * (to_neighbour.dot(direction) + depth);
+    direction_sum_ += mu * direction;
+  }
+  // false, leaving depth and direction as they were, where p gets no value:
+  // no neighbour added, or their directions cancel
+  bool Result(double& depth, Eigen::Vector3d& direction) const {
+    if (copied_) {
+      depth = copied_depth_;
+      direction = copied_direction_;
+      return true;
+    }
+    if (!(weight_sum_ > 0.0)) return false;
+    const double length = direction_sum_.norm();
+    if (!(length > kCancelledNormal * weight_sum_)) return false;
+    depth = std::max(0.0, depth_sum_ / weight_sum_);
+    direction = direction_sum_ / length;
+    return true;
+  }
+
+ private:
+  double coincident_sq_;
+  double weight_sum_ = 0.0;
+  double depth_sum_ = 0.0;
+  Eigen::Vector3d direction_sum_ = Eigen::Vector3d::Zero();
+  bool copied_ = false;
+  double copied_depth_ = 0.0;
+  Eigen::Vector3d copied_direction_ = Eigen::Vector3d::Zero();
+};
+
 // The squared distance from p to the box [lo, hi] (0 inside it).
 [[gnu::always_inline]] inline double BoxDistance2(const Eigen::Vector3d& lo,
                                                   const Eigen::Vector3d& hi,

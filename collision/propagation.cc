@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "collision/geometry.h"
 #include "collision/penetration_internal.h"
 #include "mesh/parallel_for.h"
 
@@ -60,10 +61,7 @@ void PenetrationSolver::Propagate(std::span<const CollisionObject> objects) {
       const int v = g - vertices_.offset[a];
       const TetMesh& mesh = *objects[a].mesh;
       const Eigen::Vector3d p = Position(g);
-      double weight_sum = 0.0;
-      double depth_sum = 0.0;
-      Eigen::Vector3d direction_sum = Eigen::Vector3d::Zero();
-      int copy_from = -1;
+      PropagatedPointSums sums(coincident);
       std::vector<int>& candidates = thread_scratch_[omp_get_thread_num()].candidates;
       const size_t num_listed = candidates.size();
       for (int n = mesh.adjacency_offsets()[v]; n < mesh.adjacency_offsets()[v + 1]; ++n) {
@@ -74,30 +72,14 @@ void PenetrationSolver::Propagate(std::span<const CollisionObject> objects) {
           candidates.push_back(j);
           continue;
         }
-        Eigen::Vector3d to_neighbour = Position(j_global) - p;
-        double distance_sq = to_neighbour.squaredNorm();
-        if (distance_sq < coincident * coincident) {
-          if (copy_from < 0) copy_from = j;
-          continue;
-        }
-        // mu_j = 1 / |p_j - p|^2 (method.md, stage 4)
-        double mu = 1.0 / distance_sq;
-        weight_sum += mu;
-        depth_sum += mu * (to_neighbour.dot(direction_[j]) + depth_[j]);
-        direction_sum += mu * direction_[j];
-      }
-      direction_[h] = Eigen::Vector3d::Zero();  // (none: no value yet)
-      if (copy_from >= 0) {
-        depth_[h] = depth_[copy_from];
-        direction_[h] = direction_[copy_from];
-      } else if (weight_sum > 0.0) {
-        depth_[h] = std::max(0.0, depth_sum / weight_sum);
-        const double length = direction_sum.norm();
-        // (directions that cancel leave the point without a value)
-        if (length > 1e-12 * weight_sum) direction_[h] = direction_sum / length;
+        sums.Add(Position(j_global) - p, depth_[j], direction_[j]);
       }
       source_[h] = DepthSource::kPropagated;
-      if (direction_[h].squaredNorm() == 0.0) candidates.resize(num_listed);
+      if (!sums.Result(depth_[h], direction_[h])) {
+        // (directions that cancel leave the point without a value)
+        direction_[h] = Eigen::Vector3d::Zero();
+        candidates.resize(num_listed);
+      }
     });
     for (int h : next_frontier_) {
       layer_[h] = direction_[h].squaredNorm() > 0.0 ? layer : -1;

@@ -64,37 +64,16 @@ void ShapeDepthSolver::Solve(const TetMesh& mesh, const Positions& x, std::span<
     for (int k : frontier_) {
       const int v = points[k].vertex;
       const Eigen::Vector3d p = x.row(v).transpose();
-      double weight_sum = 0.0;
-      double depth_sum = 0.0;
-      Eigen::Vector3d direction_sum = Eigen::Vector3d::Zero();
-      int copy_from = -1;
+      PropagatedPointSums sums(coincident);
       for (int n = offsets[v]; n < offsets[v + 1]; ++n) {
         const int j = point_of_[adjacency[n]];
         if (j < 0 || layer_[j] < 0) continue;  // (outside, or no value before this layer)
-        const Eigen::Vector3d to_neighbour = x.row(adjacency[n]).transpose() - p;
-        const double distance_sq = to_neighbour.squaredNorm();
-        if (distance_sq < coincident * coincident) {
-          if (copy_from < 0) copy_from = j;
-          continue;
-        }
-        // mu_j = 1 / |p_j - p|^2 (method.md, stage 4)
-        const double mu = 1.0 / distance_sq;
-        weight_sum += mu;
-        depth_sum += mu * (to_neighbour.dot(points[j].direction) + points[j].depth);
-        direction_sum += mu * points[j].direction;
+        sums.Add(x.row(adjacency[n]).transpose() - p, points[j].depth, points[j].direction);
       }
       ShapePoint value = points[k];
-      value.source = DepthSource::kPropagated;
-      const double length = direction_sum.norm();
-      if (copy_from >= 0) {
-        value.depth = points[copy_from].depth;
-        value.direction = points[copy_from].direction;
-      } else if (weight_sum > 0.0 && length > kCancelledNormal * weight_sum) {
-        value.depth = std::max(0.0, depth_sum / weight_sum);
-        value.direction = direction_sum / length;
-      } else {
-        value.source = DepthSource::kFallback;  // (directions that cancel)
-      }
+      // (directions that cancel: no value yet, the closest feature's kept)
+      value.source = sums.Result(value.depth, value.direction) ? DepthSource::kPropagated
+                                                               : DepthSource::kFallback;
       values_.push_back(value);
     }
     for (size_t i = 0; i < frontier_.size(); ++i) {

@@ -370,9 +370,6 @@ bool GeomEntry(const GeomShape& shape, const Eigen::Vector3d& outside,
   const Eigen::Vector3d d = inside - outside;
   Interval line;
   switch (shape.type) {
-    case mjGEOM_PLANE:
-      line = HalfSpaceInterval(o, d, Eigen::Vector3d::UnitZ(), 0.0, 0);
-      break;
     case mjGEOM_SPHERE:
       line = BallInterval(o, d, Eigen::Vector3d::Zero(), size[0], 0);
       break;
@@ -414,7 +411,7 @@ bool GeomEntry(const GeomShape& shape, const Eigen::Vector3d& outside,
                                                  static_cast<int>(f)));
       }
       break;
-    default:  // (a height field: not sought)
+    default:  // (a plane or a height field: not sought)
       return false;
   }
   if (!(line.t_in <= line.t_out) || line.t_out < 0.0 || line.t_in > 1.0 || line.face < 0) {
@@ -423,9 +420,6 @@ bool GeomEntry(const GeomShape& shape, const Eigen::Vector3d& outside,
   t = std::clamp(line.t_in, 0.0, 1.0);
   const Eigen::Vector3d x = o + t * d;
   switch (shape.type) {
-    case mjGEOM_PLANE:
-      normal = Eigen::Vector3d::UnitZ();
-      break;
     case mjGEOM_SPHERE:
       normal = x;
       break;

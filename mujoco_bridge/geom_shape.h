@@ -60,10 +60,11 @@ bool GeomPenetration(const GeomShape& shape, const Eigen::Vector3d& p, double& d
 // point GeomPenetration finds inside) enters the shape: the point
 // outside + t (inside - outside), t in [0, 1], and the shape's outward unit
 // normal there. The stage 2 crossing of the consistent method
-// (collision/shape_depth.h): every shape but the height field is convex, so
-// the segment enters it once, and that crossing is the nearest to
-// `outside`. False where none is found (`inside` on the surface within
-// rounding; a height field, whose crossings are not sought).
+// (collision/shape_depth.h): these shapes are convex, so the segment enters
+// once, and that crossing is the nearest to `outside`. False where none is
+// found (`inside` on the surface within rounding), and for a plane (whose
+// crossings would give its signed distance again: every one lies in it) and
+// a height field (pushed up only), whose crossings are not sought.
 bool GeomEntry(const GeomShape& shape, const Eigen::Vector3d& outside,
                const Eigen::Vector3d& inside, double& t, Eigen::Vector3d& normal);
 
