@@ -158,7 +158,7 @@ TEST(Friction, TheSceneSlipVelocitySetsTheCreep) {
 }
 
 // A block carried round on a turntable (a MuJoCo body on a hinge, servoed
-// to 1 rad/s): a soft block on the table's box geom (signed distance), on
+// to 1 rad/s): a soft block on the table's box geom (without a proxy), on
 // its tetrahedral proxy, and on a stiff slab glued to it (the consistent
 // penetration depth, both ways); and a rigid block (its proxy) on the slab.
 // Static friction holds the block well inside its cone (the pull it needs
