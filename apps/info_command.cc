@@ -39,6 +39,10 @@ void RunSceneInfo(const InfoOptions& options) {
   for (const World::GeomSummary& geom : geoms) {
     out["geoms_without_proxies"].push_back({{"name", geom.name}, {"shape", geom.shape}});
   }
+  out["made_proxies"] = nlohmann::json::array();
+  for (const World::GeomSummary& geom : world->made_proxies()) {
+    out["made_proxies"].push_back({{"name", geom.name}, {"why", geom.shape}});
+  }
   out["deformables"] = nlohmann::json::array();
   for (int i = 0; i < world->num_deformables(); ++i) {
     const DeformableBody& body = world->deformable(i);
@@ -59,6 +63,10 @@ void RunSceneInfo(const InfoOptions& options) {
               world->num_rigid_bodies() - 1, world->num_proxies());
   for (const World::GeomSummary& geom : geoms) {
     std::printf("geom         %s: %s, without a proxy\n", geom.name.c_str(), geom.shape.c_str());
+  }
+  for (const World::GeomSummary& geom : world->made_proxies()) {
+    std::printf("geom         %s: a proxy made for it (%s)\n", geom.name.c_str(),
+                geom.shape.c_str());
   }
   for (int i = 0; i < world->num_deformables(); ++i) {
     const DeformableBody& body = world->deformable(i);

@@ -4,6 +4,7 @@
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 
@@ -204,6 +205,36 @@ Eigen::Vector3d SlabNormal(int face) {
 }
 
 }  // namespace
+
+double GeomPassageWidth(const mjModel* m, int geom) {
+  const double* size = m->geom_size + 3 * geom;
+  std::array<double, 3> extent{};
+  switch (m->geom_type[geom]) {
+    case mjGEOM_SPHERE:
+    case mjGEOM_CAPSULE:
+    case mjGEOM_CYLINDER:  // (a disc edge-on: 2 h by 2 r, as wide as it is long)
+      return 2.0 * size[0];
+    case mjGEOM_BOX:
+    case mjGEOM_ELLIPSOID:
+      extent = {2.0 * size[0], 2.0 * size[1], 2.0 * size[2]};
+      break;
+    case mjGEOM_MESH: {
+      const int mesh = m->geom_dataid[geom];
+      if (mesh < 0 || m->mesh_vertnum[mesh] == 0) return 0.0;
+      Eigen::Vector3d lo = MeshVertex(m, mesh, 0), hi = lo;
+      for (int i = 1; i < m->mesh_vertnum[mesh]; ++i) {
+        lo = lo.cwiseMin(MeshVertex(m, mesh, i));
+        hi = hi.cwiseMax(MeshVertex(m, mesh, i));
+      }
+      extent = {hi.x() - lo.x(), hi.y() - lo.y(), hi.z() - lo.z()};
+      break;
+    }
+    default:  // plane, height field: unbounded
+      return std::numeric_limits<double>::infinity();
+  }
+  std::sort(extent.begin(), extent.end());
+  return extent[1];
+}
 
 GeomShape MakeGeomShape(const mjModel* m, int geom, const std::string& where) {
   GeomShape shape;

@@ -68,6 +68,14 @@ bool GeomPenetration(const GeomShape& shape, const Eigen::Vector3d& p, double& d
 bool GeomEntry(const GeomShape& shape, const Eigen::Vector3d& outside,
                const Eigen::Vector3d& inside, double& t, Eigen::Vector3d& normal);
 
+// The narrowest hole geom `geom` of `m` passes through, its second-smallest
+// extent (metres): a sphere's or a capsule's diameter, a rod's thickness, a
+// plate's width; a mesh's from the box of its vertices in the geom frame
+// (MuJoCo's principal axes). Infinity for a plane or a height field. A geom
+// narrower than the spacing of a deformable's surface vertices can sink in
+// between them, and pass through the body, touching no vertex (world.h).
+double GeomPassageWidth(const mjModel_* m, int geom);
+
 // The nearest point of the ellipsoid x^2/a^2 + y^2/b^2 + z^2/c^2 = 1
 // (radii = a, b, c > 0) to p, a point inside it or on it, and the outward
 // unit normal there. Where two points are nearest (p on a plane of

@@ -205,7 +205,7 @@ class SceneParser {
           scene.attachments.push_back(Attach(child));
         } else if (kind == "contact") {
           CheckAttributes(child, {"method", "stiffness", "damping", "friction", "slip", "stick",
-                                  "stickstiffness"});
+                                  "stickstiffness", "autoproxy"});
           if (const char* method = child->Attribute("method")) {
             std::string m(method);
             if (m == "consistent") {
@@ -226,6 +226,7 @@ class SceneParser {
           // thousand times mu times the depth before it slides; 1000 times
           // stiffer holds within a thousandth of it)
           scene.stick_stiffness = Number(child, "stickstiffness", 1e-3, 1e3);
+          scene.auto_proxies = Bool(child, "autoproxy", true);
         } else if (kind == "solver") {
           CheckAttributes(child, {"substeps", "linear", "tolerance", "maxiter", "rigid"});
           scene.solver.substeps = static_cast<int>(Number(child, "substeps", 1, 1000).value_or(1));

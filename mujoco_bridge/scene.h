@@ -83,6 +83,9 @@ struct SceneSpec {
   // the sticking spring's stiffness k_t as a fraction of the contact's
   // normal k (ContactSettings::stick_stiffness); default 1
   std::optional<double> stick_stiffness;
+  // a primitive geom narrower than a deformable's surface vertices are
+  // apart gets a generated <rigidtet> (World::made_proxies)
+  bool auto_proxies = true;
   SolverSpec solver;
   std::vector<TetBodySpec> tetbodies;
   std::vector<RigidTetSpec> rigidtets;

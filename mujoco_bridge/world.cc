@@ -11,6 +11,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <optional>
 #include <sstream>
 #include <string>
 #include <type_traits>
@@ -173,6 +174,15 @@ std::string UnnamedGeom(const mjModel* m, int geom) {
          (body ? std::string("'") + body + "'" : std::to_string(m->geom_bodyid[geom]));
 }
 
+// "name", or "#3 of body 'arm'" for one without a name (for lists)
+std::string GeomLabel(const mjModel* m, int geom) {
+  const char* name = mj_id2name(m, mjOBJ_GEOM, geom);
+  // (appended, not "#" + ...: g++ 12's -Wrestrict misreads the latter here)
+  std::string label = name ? name : "#";
+  if (!name) label += UnnamedGeom(m, geom);
+  return label;
+}
+
 // "geom 'name'", or "geom 3 of body 'arm'" for one without a name (for errors)
 std::string GeomName(const mjModel* m, int geom) {
   if (const char* name = mj_id2name(m, mjOBJ_GEOM, geom)) return std::string("geom '") + name + "'";
@@ -205,6 +215,56 @@ RawMesh GeomMesh(const mjModel* m, int geom, int resolution, long line, const st
                   " has no tetrahedral proxy; use box, sphere, ellipsoid, capsule or "
                   "cylinder, or give a mesh file");
   }
+}
+
+// geom `geom`'s frame in its body's (geom_pos, geom_quat)
+Eigen::Isometry3d GeomInBody(const mjModel* m, int geom) {
+  Eigen::Isometry3d X_BG = Eigen::Isometry3d::Identity();
+  X_BG.translation() = Eigen::Map<const Eigen::Vector3d>(m->geom_pos + 3 * geom);
+  const double* q = m->geom_quat + 4 * geom;
+  X_BG.linear() = Eigen::Quaterniond(q[0], q[1], q[2], q[3]).toRotationMatrix();
+  return X_BG;
+}
+
+// The proxy made for a primitive geom `width` wide (GeomPassageWidth)
+// without a <rigidtet>: its surface vertices about half its width apart or
+// closer (a box's cells at most that long, up to 256 along an axis; a
+// sphere or an ellipsoid at level 1, 42 surface vertices; a capsule or a
+// cylinder 3 cells across, and as long along it). Null for other types.
+std::optional<RawMesh> MadeProxyMesh(const mjModel* m, int geom, double width, long line,
+                                     const std::string& path) {
+  switch (m->geom_type[geom]) {
+    case mjGEOM_BOX: {
+      const double* size = m->geom_size + 3 * geom;
+      Eigen::Vector3i cells;
+      for (int k = 0; k < 3; ++k) {
+        cells[k] = static_cast<int>(std::clamp(std::ceil(4.0 * size[k] / width), 1.0, 256.0));
+      }
+      return MakeBox({size[0], size[1], size[2]}, cells, 6);
+    }
+    case mjGEOM_SPHERE:
+    case mjGEOM_ELLIPSOID:
+      return GeomMesh(m, geom, 1, line, path);
+    case mjGEOM_CAPSULE:
+    case mjGEOM_CYLINDER:
+      return GeomMesh(m, geom, 3, line, path);
+    default:
+      return std::nullopt;
+  }
+}
+
+// the mean length of the edges of a mesh's surface triangles (each edge
+// of a closed surface is in two: the mean over triangle sides is the mean
+// over edges)
+double MeanSurfaceEdge(const TetMesh& mesh, const Positions& x) {
+  const Triangles& surface = mesh.surface();
+  double sum = 0.0;
+  for (Eigen::Index f = 0; f < surface.rows(); ++f) {
+    for (int k = 0; k < 3; ++k) {
+      sum += (x.row(surface(f, k)) - x.row(surface(f, (k + 1) % 3))).norm();
+    }
+  }
+  return surface.rows() > 0 ? sum / (3.0 * static_cast<double>(surface.rows())) : 0.0;
 }
 
 // an MJCF <skin> of a deformable's surface with one bone on the world body:
@@ -484,6 +544,25 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
 
   // rigid proxies
   world->geom_has_proxy_.assign(m->ngeom, 0);
+  // body `body`'s proxy from `raw` (mesh frame), placed at X_BM in the body
+  // frame
+  auto add_proxy = [&](int body, RawMesh raw, const Eigen::Isometry3d& X_BM, double friction,
+                       long line, const std::string& file) {
+    auto proxy = std::make_unique<Proxy>();
+    proxy->body = body;
+    proxy->friction = friction;
+    CheckMemory(raw.tets.rows(), kBytesPerProxyTet, needed_memory, available_memory,
+                options.memory_limit.has_value(), scene_path, line, "<rigidtet>");
+    for (Eigen::Index v = 0; v < raw.positions.rows(); ++v) {
+      raw.positions.row(v) = (X_BM * raw.positions.row(v).transpose()).transpose();
+    }
+    proxy->mesh = std::make_shared<TetMesh>(TetMesh::Build(std::move(raw)));
+    world->AddLoadWarnings(*proxy->mesh, scene_path, line, "<rigidtet>", file);
+    proxy->areas = ComputeContactAreas(*proxy->mesh);
+    proxy->mean_surface_area = MeanSurfaceVertexArea(*proxy->mesh, proxy->areas);
+    proxy->positions = proxy->mesh->positions();
+    world->proxies_.push_back(std::move(proxy));
+  };
   for (const RigidTetSpec& spec : scene.rigidtets) {
     int body = mj_name2id(m, mjOBJ_BODY, spec.body.c_str());
     if (body < 0) {
@@ -491,10 +570,9 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
               "<rigidtet>: no MuJoCo body named '" + spec.body + "'; the scene has " +
                   NamesOf(m, mjOBJ_BODY));
     }
-    auto proxy = std::make_unique<Proxy>();
-    proxy->body = body;
     RawMesh raw;
     Eigen::Isometry3d X_BM = spec.pose;
+    double friction = 0.5;
     if (!spec.geom.empty()) {
       int geom = mj_name2id(m, mjOBJ_GEOM, spec.geom.c_str());
       if (geom < 0 || m->geom_bodyid[geom] != body) {
@@ -506,13 +584,9 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
                     "; body '" + spec.body + "' has " + NamesOf(m, mjOBJ_GEOM, body));
       }
       raw = GeomMesh(m, geom, spec.resolution, spec.line, scene_path);
-      Eigen::Isometry3d X_BG = Eigen::Isometry3d::Identity();
-      X_BG.translation() = Eigen::Map<const Eigen::Vector3d>(m->geom_pos + 3 * geom);
-      const double* q = m->geom_quat + 4 * geom;
-      X_BG.linear() = Eigen::Quaterniond(q[0], q[1], q[2], q[3]).toRotationMatrix();
-      X_BM = X_BG;
+      X_BM = GeomInBody(m, geom);
       world->geom_has_proxy_[geom] = 1;
-      proxy->friction = m->geom_friction[3 * geom];
+      friction = m->geom_friction[3 * geom];
     } else {
       try {
         raw = ReadRawMesh(spec.file);
@@ -521,17 +595,7 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
       }
     }
     raw.positions *= spec.scale;
-    CheckMemory(raw.tets.rows(), kBytesPerProxyTet, needed_memory, available_memory,
-                options.memory_limit.has_value(), scene_path, spec.line, "<rigidtet>");
-    for (Eigen::Index v = 0; v < raw.positions.rows(); ++v) {
-      raw.positions.row(v) = (X_BM * raw.positions.row(v).transpose()).transpose();
-    }
-    proxy->mesh = std::make_shared<TetMesh>(TetMesh::Build(std::move(raw)));
-    world->AddLoadWarnings(*proxy->mesh, scene_path, spec.line, "<rigidtet>", spec.file);
-    proxy->areas = ComputeContactAreas(*proxy->mesh);
-    proxy->mean_surface_area = MeanSurfaceVertexArea(*proxy->mesh, proxy->areas);
-    proxy->positions = proxy->mesh->positions();
-    world->proxies_.push_back(std::move(proxy));
+    add_proxy(body, std::move(raw), X_BM, friction, spec.line, spec.file);
   }
 
   // attachments: pins that follow a MuJoCo body
@@ -611,11 +675,48 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
 
   // the geoms deformables meet by their shapes: those that collide with
   // them (contype or conaffinity with bit 0 set: a deformable's are both 1)
-  // and have no proxy
+  // and have no proxy. A geom narrower than a deformable's surface vertices
+  // are apart can sink in between them, touching none, and pass through
+  // the body (a 12 mm ball fell through a block whose surface vertices are
+  // 33 mm apart, tests/scenarios/small_geom_test.cc): a primitive one gets
+  // a proxy made for it (<contact autoproxy>), whose vertices meet the
+  // deformable's tetrahedra; any other is warned of.
+  double spacing = 0.0;  // the coarsest deformable's (MeanSurfaceEdge)
+  std::string coarsest;
+  for (const auto& body : world->bodies_) {
+    const double edge = MeanSurfaceEdge(body->mesh(), body->positions());
+    if (edge > spacing) {
+      spacing = edge;
+      coarsest = body->name();
+    }
+  }
   for (int g = 0; g < m->ngeom; ++g) {
     if (world->geom_has_proxy_[g]) continue;
     if (!(m->geom_contype[g] & 1) && !(m->geom_conaffinity[g] & 1)) continue;
     const std::string name = GeomName(m, g);
+    const double width = GeomPassageWidth(m, g);
+    if (width < spacing) {
+      char narrow[256];
+      std::snprintf(narrow, sizeof(narrow),
+                    "%.3g m wide, less than the %.3g m the surface vertices of tetbody '%s' are "
+                    "apart on average",
+                    width, spacing, coarsest.c_str());
+      std::optional<RawMesh> raw;
+      if (scene.auto_proxies) raw = MadeProxyMesh(m, g, width, 0, scene_path);
+      if (raw) {
+        add_proxy(m->geom_bodyid[g], std::move(*raw), GeomInBody(m, g), m->geom_friction[3 * g], 0,
+                  "");
+        world->geom_has_proxy_[g] = 1;
+        world->made_proxies_.push_back({GeomLabel(m, g), narrow});
+        continue;
+      }
+      world->load_warnings_.push_back(
+          Where(scene_path) + ": " + name + " is " + narrow +
+          ": it can sink in between them, touching none, and pass through (deformables meet "
+          "geoms at their vertices); give it a <rigidtet>" +
+          (scene.auto_proxies ? " with a tetrahedral mesh of it" : ", or leave autoproxy on") +
+          ", or refine the tetbody");
+    }
     try {
       world->geom_shapes_.emplace_back(g, MakeGeomShape(m, g, name));
     } catch (const Error& e) {
@@ -963,11 +1064,7 @@ std::vector<World::GeomSummary> World::GeomsMetByShape() const {
         kind = "type " + std::to_string(shape.type) + " (not met)";
         break;
     }
-    const char* name = mj_id2name(model_, mjOBJ_GEOM, g);
-    // (appended, not "#" + ...: g++ 12's -Wrestrict misreads the latter here)
-    std::string label = name ? name : "#";
-    if (!name) label += UnnamedGeom(model_, g);
-    summaries.push_back({label, kind});
+    summaries.push_back({GeomLabel(model_, g), kind});
   }
   return summaries;
 }

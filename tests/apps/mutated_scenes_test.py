@@ -51,7 +51,7 @@ NAMES = [
     "size", "resolution", "split", "young", "poisson", "density", "damping", "pos", "euler",
     "quat", "scale", "vel", "shape", "file", "name", "body", "geom", "tetbody", "vertices", "box",
     "sphere", "stiffness", "method", "friction", "substeps", "tolerance", "maxiter", "rigid",
-    "bogus",
+    "autoproxy", "bogus",
 ]
 STEPS = 30
 TIMEOUT_S = 300

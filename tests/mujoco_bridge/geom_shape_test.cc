@@ -4,11 +4,13 @@
 #include <mujoco/mujoco.h>
 
 #include <Eigen/Geometry>
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
 #include <cstring>
 #include <functional>
+#include <limits>
 #include <memory>
 #include <random>
 #include <sstream>
@@ -472,6 +474,95 @@ TEST(GeomShape, BundledTerrainSceneHoldsItsBodiesUp) {
     }
   }
   EXPECT_LT(deepest, 0.002) << "m below the geom surface over a vertex";
+}
+
+// Oracle: the geom's extents along its axes, from MuJoCo's rays through its
+// centre from either side (each primitive is symmetric about its centre
+// and axes), and the narrowest hole a geom passes through is the second
+// smallest of them. The mesh is a box whose extents are given.
+TEST(GeomShape, PassageWidthIsTheSecondSmallestExtent) {
+  ForEachConvexGeom(17, [](const Compiled* compiled, int g, const GeomShape& shape, std::mt19937&) {
+    if (shape.type == mjGEOM_MESH) return;
+    const double far = 2.0 * compiled->m->geom_rbound[g];
+    std::vector<double> extents;
+    for (int k = 0; k < 3; ++k) {
+      const Eigen::Vector3d u = Eigen::Vector3d::Unit(k);
+      extents.push_back(2.0 * far - compiled->Ray(g, far * u, -u) - compiled->Ray(g, -far * u, u));
+    }
+    std::sort(extents.begin(), extents.end());
+    EXPECT_NEAR(GeomPassageWidth(compiled->m, g), extents[1], 1e-9);
+  });
+  TempDir dir("tetcosim_geom_shape");
+  std::unique_ptr<Compiled> compiled = Compile(dir, R"(<mujoco>
+  <asset><mesh name="brick" vertex="0 0 0  0.3 0 0  0 0.2 0  0.3 0.2 0
+                                    0 0 0.1  0.3 0 0.1  0 0.2 0.1  0.3 0.2 0.1"/>
+    <hfield name="field" nrow="2" ncol="2" size="1 1 0.1 0.1"/></asset>
+  <worldbody>
+    <geom type="mesh" mesh="brick" euler="10 20 30"/>
+    <geom type="plane" size="1 1 0.1"/>
+    <geom type="hfield" hfield="field"/>
+  </worldbody>
+</mujoco>)");
+  ASSERT_NE(compiled, nullptr);
+  EXPECT_NEAR(GeomPassageWidth(compiled->m, 0), 0.2, 1e-6);  // (single precision)
+  EXPECT_EQ(GeomPassageWidth(compiled->m, 1), std::numeric_limits<double>::infinity());
+  EXPECT_EQ(GeomPassageWidth(compiled->m, 2), std::numeric_limits<double>::infinity());
+}
+
+// Which geoms get a proxy made for them: the primitives narrower than the
+// coarsest deformable's surface vertices are apart (a block of 3 cells a
+// side: 3.8 cm on average), that meet deformables and have no <rigidtet>;
+// a narrow mesh is warned of instead. A finer block makes none.
+TEST(GeomShape, ProxiesAreMadeForPrimitivesNarrowerThanTheVertexSpacing) {
+  TempDir dir("tetcosim_geom_shape");
+  auto load = [&](int resolution, bool auto_proxies) {
+    std::string xml = R"(<mujoco>
+  <asset><mesh name="pebble" vertex="0 0 0  0.01 0 0  0 0.01 0  0 0 0.01"/></asset>
+  <worldbody>
+    <geom name="floor" type="plane" size="1 1 0.1"/>
+    <geom name="plate" type="box" size="0.2 0.2 0.001" pos="0 0 0.5"/>
+    <geom name="big" type="sphere" size="0.03" pos="1 0 0.5"/>
+    <geom name="off" type="sphere" size="0.01" pos="2 0 0.5" contype="2" conaffinity="2"/>
+    <geom name="pebble" type="mesh" mesh="pebble" pos="3 0 0.5"/>
+    <body name="rod" pos="4 0 0.5"><geom name="rod" type="capsule" size="0.01 0.2"/></body>
+    <body name="given" pos="5 0 0.5"><geom name="given" type="sphere" size="0.01"/></body>
+  </worldbody>
+  <deformable>
+    <contact autoproxy="AUTO"/>
+    <rigidtet body="given" geom="given"/>
+    <tetbody name="block" shape="box" size="0.05 0.05 0.05" resolution="CELLS"/>
+  </deformable>
+</mujoco>)";
+    xml.replace(xml.find("AUTO"), 4, auto_proxies ? "true" : "false");
+    xml.replace(xml.find("CELLS"), 5, std::to_string(resolution));
+    return World::Load(dir.Write("scene.xml", xml));
+  };
+  auto names = [](const World& world) {
+    std::string all;
+    for (const World::GeomSummary& geom : world.made_proxies()) all += geom.name + " ";
+    return all;
+  };
+  auto warnings = [](const World& world) {
+    std::string all;
+    for (const std::string& warning : world.load_warnings()) all += warning + "\n";
+    return all;
+  };
+  std::unique_ptr<World> coarse = load(3, true);
+  ASSERT_EQ(names(*coarse), "rod ");
+  EXPECT_EQ(coarse->num_proxies(), 2);  // given's and rod's
+  EXPECT_NE(coarse->made_proxies()[0].shape.find("0.02 m wide, less than the 0.0"),
+            std::string::npos)
+      << coarse->made_proxies()[0].shape;
+  const std::string coarse_warnings = warnings(*coarse);
+  EXPECT_NE(coarse_warnings.find("geom 'pebble' is 0.0"), std::string::npos) << coarse_warnings;
+  EXPECT_EQ(coarse_warnings.find("'rod'"), std::string::npos) << coarse_warnings;
+  std::unique_ptr<World> off = load(3, false);
+  EXPECT_EQ(names(*off), "");
+  EXPECT_EQ(off->num_proxies(), 1);
+  EXPECT_NE(warnings(*off).find("geom 'rod' is 0.02 m wide"), std::string::npos) << warnings(*off);
+  std::unique_ptr<World> fine = load(12, true);
+  EXPECT_EQ(names(*fine), "");
+  EXPECT_EQ(warnings(*fine), "");
 }
 
 // An arrowhead (a concave quadrilateral, extruded): its hull holds 4/3 of

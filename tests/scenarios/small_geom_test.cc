@@ -1,0 +1,106 @@
+// A rigid geom narrower than a soft block's surface vertices are apart,
+// dropped on the middle of one of its surface cells. Deformables meet a geom
+// at their vertices, so such a geom, met as a geom, touches none: it sinks
+// in between them and falls through the block. With the proxy made for it
+// (World::made_proxies, <contact autoproxy>, on by default), its vertices
+// meet the block's tetrahedra and it comes to rest on the block.
+// Labelled "scenario".
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <string>
+
+#include "mujoco_bridge/scenario.h"
+#include "tests/mujoco_bridge/temp_dir.h"
+
+namespace tetcosim {
+namespace {
+
+// The block is 10 cm across, 3 cells a side (vertices 3.3 cm apart), its
+// top at z = 0.1, a cell's middle right above the origin; each geom is
+// 8 to 12 mm wide and 2 to 3.2 cm long, so that it fits within a cell, and
+// placed (and turned) in its body's frame.
+struct SmallGeom {
+  const char* name;
+  const char* geom;    // its MJCF attributes
+  double half_height;  // how far its lowest point is below its centre, m
+};
+
+constexpr SmallGeom kSmallGeoms[] = {
+    {"sphere", R"(type="sphere" size="0.006")", 0.006},
+    {"capsule", R"(type="capsule" size="0.005 0.01" euler="0 90 0")", 0.005},
+    {"box", R"(type="box" size="0.004 0.016 0.005")", 0.005},
+    {"cylinder", R"(type="cylinder" size="0.005 0.01" euler="90 0 0")", 0.005},
+    {"ellipsoid", R"(type="ellipsoid" size="0.006 0.012 0.004")", 0.004},
+};
+constexpr double kTop = 0.1;
+
+std::string Scene(const SmallGeom& geom, bool auto_proxy) {
+  return std::string(R"(<mujoco>
+  <option timestep="0.001"/>
+  <worldbody>
+    <geom name="floor" type="plane" size="1 1 0.1"/>
+    <body name="drop" pos="0 0 0.15"><freejoint/><geom name="drop" density="2000" pos="0 0 -0.02" )") +
+         geom.geom + R"(/></body>
+  </worldbody>
+  <deformable>
+    <contact autoproxy=")" +
+         (auto_proxy ? "true" : "false") + R"("/>
+    <tetbody name="block" shape="box" size="0.05 0.05 0.05" resolution="3" pos="0 0 0.05"
+             density="300" young="5e4"/>
+  </deformable>
+</mujoco>)";
+}
+
+struct Outcome {
+  double z = 0.0;      // the geom's centre at the end, m
+  double speed = 0.0;  // m/s
+  int made_proxies = 0;
+  std::string warnings;
+};
+
+Outcome Drop(const SmallGeom& geom, bool auto_proxy) {
+  TempDir dir("tetcosim_small_geom");
+  Scenario scenario(dir.Write("drop.xml", Scene(geom, auto_proxy)));
+  EXPECT_TRUE(scenario.Run(1.0)) << scenario.message();
+  const World& world = scenario.world();
+  const int body = world.BodyId("drop");
+  Outcome outcome;
+  outcome.z = world.RigidBodyCenterOfMass(body).z();
+  outcome.speed = world.RigidBodyPointVelocity(body, world.RigidBodyCenterOfMass(body)).norm();
+  outcome.made_proxies = static_cast<int>(world.made_proxies().size());
+  for (const std::string& warning : world.load_warnings()) outcome.warnings += warning + "\n";
+  std::printf("%s, %s: centre at z = %.4f m, speed %.2g m/s\n", geom.name,
+              auto_proxy ? "proxy made" : "geom", outcome.z, outcome.speed);
+  return outcome;
+}
+
+TEST(SmallGeom, RestsOnACoarseBlockThroughTheProxyMadeForIt) {
+  for (const SmallGeom& geom : kSmallGeoms) {
+    SCOPED_TRACE(geom.name);
+    const Outcome outcome = Drop(geom, /*auto_proxy=*/true);
+    EXPECT_EQ(outcome.made_proxies, 1);
+    EXPECT_EQ(outcome.warnings, "");
+    // on the block, at most 2 mm into it, and at rest
+    EXPECT_GT(outcome.z, kTop + geom.half_height - 0.002);
+    EXPECT_LT(outcome.z, kTop + geom.half_height + 0.001);
+    EXPECT_LT(outcome.speed, 0.01);
+  }
+}
+
+TEST(SmallGeom, MetAsAGeomItFallsThroughTheBlockAndIsWarnedOf) {
+  const SmallGeom& sphere = kSmallGeoms[0];
+  const Outcome outcome = Drop(sphere, /*auto_proxy=*/false);
+  EXPECT_EQ(outcome.made_proxies, 0);
+  EXPECT_NE(outcome.warnings.find("geom 'drop' is 0.012 m wide, less than the 0.0"),
+            std::string::npos)
+      << outcome.warnings;
+  EXPECT_NE(outcome.warnings.find("tetbody 'block'"), std::string::npos) << outcome.warnings;
+  // through the block, down to the floor under it
+  EXPECT_LT(outcome.z, 0.02);
+}
+
+}  // namespace
+}  // namespace tetcosim
