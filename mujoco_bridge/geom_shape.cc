@@ -7,8 +7,11 @@
 #include <array>
 #include <cmath>
 #include <limits>
+#include <map>
+#include <utility>
 
 #include "mesh/error.h"
+#include "mesh/generators.h"
 
 namespace tetcosim {
 namespace {
@@ -16,6 +19,10 @@ namespace {
 // Faces of a convex hull closer than this (unit normals, and offsets over
 // the hull's size) are one plane.
 constexpr double kSamePlane = 1e-12;
+
+// ConvexHullTetMesh splits faces four ways at most until there would be
+// more than this many.
+constexpr size_t kMaxHullTriangles = 20000;
 
 // vertex i of mesh `mesh` (geom frame; MuJoCo keeps them in single precision)
 Eigen::Vector3d MeshVertex(const mjModel* m, int mesh, int i) {
@@ -206,6 +213,17 @@ Eigen::Vector3d SlabNormal(int face) {
 
 }  // namespace
 
+Eigen::Vector3d MeshExtent(const mjModel* m, int geom) {
+  const int mesh = m->geom_dataid[geom];
+  if (mesh < 0 || m->mesh_vertnum[mesh] == 0) return Eigen::Vector3d::Zero();
+  Eigen::Vector3d lo = MeshVertex(m, mesh, 0), hi = lo;
+  for (int i = 1; i < m->mesh_vertnum[mesh]; ++i) {
+    lo = lo.cwiseMin(MeshVertex(m, mesh, i));
+    hi = hi.cwiseMax(MeshVertex(m, mesh, i));
+  }
+  return hi - lo;
+}
+
 double GeomPassageWidth(const mjModel* m, int geom) {
   const double* size = m->geom_size + 3 * geom;
   std::array<double, 3> extent{};
@@ -219,14 +237,8 @@ double GeomPassageWidth(const mjModel* m, int geom) {
       extent = {2.0 * size[0], 2.0 * size[1], 2.0 * size[2]};
       break;
     case mjGEOM_MESH: {
-      const int mesh = m->geom_dataid[geom];
-      if (mesh < 0 || m->mesh_vertnum[mesh] == 0) return 0.0;
-      Eigen::Vector3d lo = MeshVertex(m, mesh, 0), hi = lo;
-      for (int i = 1; i < m->mesh_vertnum[mesh]; ++i) {
-        lo = lo.cwiseMin(MeshVertex(m, mesh, i));
-        hi = hi.cwiseMax(MeshVertex(m, mesh, i));
-      }
-      extent = {hi.x() - lo.x(), hi.y() - lo.y(), hi.z() - lo.z()};
+      const Eigen::Vector3d e = MeshExtent(m, geom);
+      extent = {e.x(), e.y(), e.z()};
       break;
     }
     default:  // plane, height field: unbounded
@@ -234,6 +246,97 @@ double GeomPassageWidth(const mjModel* m, int geom) {
   }
   std::sort(extent.begin(), extent.end());
   return extent[1];
+}
+
+RawMesh ConvexHullTetMesh(const mjModel* m, int geom, double max_edge, const std::string& where) {
+  MakeGeomShape(m, geom, where);  // (throws for a mesh without a hull)
+  const int mesh = m->geom_dataid[geom];
+  const int* graph = m->mesh_graph + m->mesh_graphadr[mesh];
+  const int num_hull = graph[0];
+  const int num_faces = graph[1];
+  const int* hull_vertex = graph + 2 + num_hull;
+  const int* face = graph + 2 + 3 * num_hull + 3 * num_faces;
+  // the hull's vertices, numbered 0 .. num_hull - 1, and their mean
+  std::vector<Eigen::Vector3d> points;
+  std::vector<int> local(static_cast<size_t>(m->mesh_vertnum[mesh]), -1);
+  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+  for (int k = 0; k < num_hull; ++k) {
+    local[static_cast<size_t>(hull_vertex[k])] = k;
+    points.push_back(MeshVertex(m, mesh, hull_vertex[k]));
+    centre += points.back();
+  }
+  centre /= std::max(1, num_hull);
+  std::vector<std::array<int, 3>> triangles;
+  triangles.reserve(static_cast<size_t>(num_faces));
+  for (int f = 0; f < num_faces; ++f) {
+    triangles.push_back({local[static_cast<size_t>(face[3 * f])],
+                         local[static_cast<size_t>(face[3 * f + 1])],
+                         local[static_cast<size_t>(face[3 * f + 2])]});
+  }
+  // a triangle's longest edge: its corners k and k + 1
+  auto longest_edge = [&](const std::array<int, 3>& t) {
+    int best = 0;
+    for (int k = 1; k < 3; ++k) {
+      if ((points[t[(k + 1) % 3]] - points[t[k]]).squaredNorm() >
+          (points[t[(best + 1) % 3]] - points[t[best]]).squaredNorm()) {
+        best = k;
+      }
+    }
+    return best;
+  };
+  // every face outward, as seen from the centre
+  for (std::array<int, 3>& t : triangles) {
+    const Eigen::Vector3d normal = (points[t[1]] - points[t[0]]).cross(points[t[2]] - points[t[0]]);
+    if (normal.dot(points[t[0]] - centre) < 0.0) std::swap(t[1], t[2]);
+  }
+  // each face into four, corners and midpoints (which lie on the hull: on
+  // the face, or on the hull's edge), until the longest edge is at most
+  // max_edge or kMaxHullTriangles would be passed
+  auto longest = [&] {
+    double length = 0.0;
+    for (const std::array<int, 3>& t : triangles) {
+      const int k = longest_edge(t);
+      length = std::max(length, (points[t[(k + 1) % 3]] - points[t[k]]).norm());
+    }
+    return length;
+  };
+  while (longest() > max_edge && 4 * triangles.size() <= kMaxHullTriangles) {
+    std::map<std::pair<int, int>, int> midpoints;
+    auto midpoint = [&](int a, int b) {
+      const auto [it, inserted] = midpoints.try_emplace(std::minmax(a, b), 0);
+      if (inserted) {
+        it->second = static_cast<int>(points.size());
+        points.push_back(0.5 * (points[a] + points[b]));
+      }
+      return it->second;
+    };
+    std::vector<std::array<int, 3>> coarse;
+    coarse.swap(triangles);
+    for (const std::array<int, 3>& t : coarse) {
+      const int ab = midpoint(t[0], t[1]), bc = midpoint(t[1], t[2]), ca = midpoint(t[2], t[0]);
+      triangles.push_back({t[0], ab, ca});
+      triangles.push_back({ab, t[1], bc});
+      triangles.push_back({ca, bc, t[2]});
+      triangles.push_back({ab, bc, ca});
+    }
+  }
+  // a tetrahedron from each face to the centre (positive: the face is
+  // outward, so that its corners turn clockwise seen from the centre, and
+  // the hull is convex around the centre)
+  RawMesh raw;
+  raw.positions.resize(static_cast<Eigen::Index>(points.size()) + 1, 3);
+  for (size_t v = 0; v < points.size(); ++v) {
+    raw.positions.row(static_cast<Eigen::Index>(v)) = points[v].transpose();
+  }
+  const int apex = static_cast<int>(points.size());
+  raw.positions.row(apex) = centre.transpose();
+  raw.tets.resize(static_cast<Eigen::Index>(triangles.size()), 4);
+  for (size_t f = 0; f < triangles.size(); ++f) {
+    raw.tets.row(static_cast<Eigen::Index>(f)) << triangles[f][0], triangles[f][2], triangles[f][1],
+        apex;
+  }
+  raw.source = where + ": its convex hull";
+  return raw;
 }
 
 GeomShape MakeGeomShape(const mjModel* m, int geom, const std::string& where) {

@@ -19,6 +19,8 @@
 #include <string>
 #include <vector>
 
+#include "mesh/tet_mesh.h"
+
 struct mjModel_;
 
 namespace tetcosim {
@@ -68,6 +70,10 @@ bool GeomPenetration(const GeomShape& shape, const Eigen::Vector3d& p, double& d
 bool GeomEntry(const GeomShape& shape, const Eigen::Vector3d& outside,
                const Eigen::Vector3d& inside, double& t, Eigen::Vector3d& normal);
 
+// The size of the box of mesh geom `geom`'s vertices along the geom
+// frame's axes (MuJoCo's principal axes of the mesh), metres.
+Eigen::Vector3d MeshExtent(const mjModel_* m, int geom);
+
 // The narrowest hole geom `geom` of `m` passes through, its second-smallest
 // extent (metres): a sphere's or a capsule's diameter, a rod's thickness, a
 // plate's width; a mesh's from the box of its vertices in the geom frame
@@ -75,6 +81,13 @@ bool GeomEntry(const GeomShape& shape, const Eigen::Vector3d& outside,
 // narrower than the spacing of a deformable's surface vertices can sink in
 // between them, and pass through the body, touching no vertex (world.h).
 double GeomPassageWidth(const mjModel_* m, int geom);
+
+// A tetrahedral mesh of mesh geom `geom`'s convex hull (geom frame): a
+// tetrahedron from the mean of the hull's vertices to each face of the hull,
+// the faces split in four (at their edges' midpoints, which lie on the
+// hull) until no edge is longer than max_edge, or there would be more than
+// 20,000 of them. Throws Error, naming `where`, for a mesh without a hull.
+RawMesh ConvexHullTetMesh(const mjModel_* m, int geom, double max_edge, const std::string& where);
 
 // The nearest point of the ellipsoid x^2/a^2 + y^2/b^2 + z^2/c^2 = 1
 // (radii = a, b, c > 0) to p, a point inside it or on it, and the outward

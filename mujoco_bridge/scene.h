@@ -43,7 +43,7 @@ struct TetBodySpec {
 struct RigidTetSpec {
   long line = 0;
   std::string body;  // MuJoCo body name
-  std::string geom;  // one of its primitive geoms, or empty with `file`
+  std::string geom;  // one of its geoms (not a plane or height field), or empty with `file`
   std::string file;
   Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();  // X_BM: mesh in the body frame
   double scale = 1.0;
@@ -83,8 +83,8 @@ struct SceneSpec {
   // the sticking spring's stiffness k_t as a fraction of the contact's
   // normal k (ContactSettings::stick_stiffness); default 1
   std::optional<double> stick_stiffness;
-  // a primitive geom narrower than a deformable's surface vertices are
-  // apart gets a generated <rigidtet> (World::made_proxies)
+  // a geom narrower than a deformable's surface vertices are apart gets a
+  // generated <rigidtet> (World::made_proxies)
   bool auto_proxies = true;
   SolverSpec solver;
   std::vector<TetBodySpec> tetbodies;

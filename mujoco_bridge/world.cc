@@ -189,7 +189,7 @@ std::string GeomName(const mjModel* m, int geom) {
   return "geom " + UnnamedGeom(m, geom);
 }
 
-// a tetrahedral mesh of a primitive geom, in the geom's own frame
+// a tetrahedral mesh of a geom (a mesh: of its convex hull), in the geom's own frame
 RawMesh GeomMesh(const mjModel* m, int geom, int resolution, long line, const std::string& path) {
   const double* size = m->geom_size + 3 * geom;
   const int n = std::max(1, resolution);
@@ -209,11 +209,17 @@ RawMesh GeomMesh(const mjModel* m, int geom, int resolution, long line, const st
       return MakeCapsule(size[0], size[1], n);
     case mjGEOM_CYLINDER:
       return MakeCylinder(size[0], size[1], n);
+    case mjGEOM_MESH:
+      try {
+        return ConvexHullTetMesh(m, geom, MeshExtent(m, geom).maxCoeff() / n, GeomName(m, geom));
+      } catch (const Error& e) {
+        ThrowAt(path, line, std::string("<rigidtet>: ") + e.what());
+      }
     default:
       ThrowAt(path, line,
               "<rigidtet>: geom type " + std::to_string(m->geom_type[geom]) +
-                  " has no tetrahedral proxy; use box, sphere, ellipsoid, capsule or "
-                  "cylinder, or give a mesh file");
+                  " has no tetrahedral proxy; use box, sphere, ellipsoid, capsule, cylinder or "
+                  "mesh (its convex hull), or give a mesh file");
   }
 }
 
@@ -226,22 +232,30 @@ Eigen::Isometry3d GeomInBody(const mjModel* m, int geom) {
   return X_BG;
 }
 
-// The proxy made for a primitive geom `width` wide (GeomPassageWidth)
-// without a <rigidtet>: its surface vertices about half its width apart or
-// closer (a box's cells at most that long, up to 256 along an axis; a
-// sphere or an ellipsoid at level 1, 42 surface vertices; a capsule or a
-// cylinder 3 cells across, and as long along it). Null for other types.
+// The proxy made for a geom `width` wide (GeomPassageWidth) without a
+// <rigidtet>: its surface vertices about half its width apart or closer (a
+// box's cells at most that long, up to 256 along an axis; a mesh's convex
+// hull with faces split until their edges are; a sphere or an ellipsoid at
+// level 1, 42 surface vertices; a capsule or a cylinder 3 cells across,
+// and as long along it). Null for a plane or a height field.
 std::optional<RawMesh> MadeProxyMesh(const mjModel* m, int geom, double width, long line,
                                      const std::string& path) {
+  // cells along an axis `extent` long
+  auto cells = [&](double extent) {
+    return static_cast<int>(std::clamp(std::ceil(2.0 * extent / width), 1.0, 256.0));
+  };
   switch (m->geom_type[geom]) {
     case mjGEOM_BOX: {
       const double* size = m->geom_size + 3 * geom;
-      Eigen::Vector3i cells;
-      for (int k = 0; k < 3; ++k) {
-        cells[k] = static_cast<int>(std::clamp(std::ceil(4.0 * size[k] / width), 1.0, 256.0));
-      }
-      return MakeBox({size[0], size[1], size[2]}, cells, 6);
+      return MakeBox({size[0], size[1], size[2]},
+                     {cells(2.0 * size[0]), cells(2.0 * size[1]), cells(2.0 * size[2])}, 6);
     }
+    case mjGEOM_MESH:
+      try {
+        return ConvexHullTetMesh(m, geom, 0.5 * width, GeomName(m, geom));
+      } catch (const Error& e) {
+        ThrowAt(path, line, e.what());
+      }
     case mjGEOM_SPHERE:
     case mjGEOM_ELLIPSOID:
       return GeomMesh(m, geom, 1, line, path);
@@ -678,9 +692,10 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
   // and have no proxy. A geom narrower than a deformable's surface vertices
   // are apart can sink in between them, touching none, and pass through
   // the body (a 12 mm ball fell through a block whose surface vertices are
-  // 33 mm apart, tests/scenarios/small_geom_test.cc): a primitive one gets
-  // a proxy made for it (<contact autoproxy>), whose vertices meet the
-  // deformable's tetrahedra; any other is warned of.
+  // 33 mm apart, tests/scenarios/small_geom_test.cc): it gets a proxy made
+  // for it (<contact autoproxy>; a mesh, of its convex hull), whose
+  // vertices meet the deformable's tetrahedra, or with autoproxy off a
+  // warning.
   double spacing = 0.0;  // the coarsest deformable's (MeanSurfaceEdge)
   std::string coarsest;
   for (const auto& body : world->bodies_) {
@@ -701,21 +716,31 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
                     "%.3g m wide, less than the %.3g m the surface vertices of tetbody '%s' are "
                     "apart on average",
                     width, spacing, coarsest.c_str());
-      std::optional<RawMesh> raw;
-      if (scene.auto_proxies) raw = MadeProxyMesh(m, g, width, 0, scene_path);
-      if (raw) {
-        add_proxy(m->geom_bodyid[g], std::move(*raw), GeomInBody(m, g), m->geom_friction[3 * g], 0,
-                  "");
-        world->geom_has_proxy_[g] = 1;
-        world->made_proxies_.push_back({GeomLabel(m, g), narrow});
-        continue;
+      std::string unmade;  // why no proxy could be made, if one was tried
+      if (scene.auto_proxies) {
+        try {
+          std::optional<RawMesh> raw = MadeProxyMesh(m, g, width, 0, scene_path);
+          if (raw) {
+            add_proxy(m->geom_bodyid[g], std::move(*raw), GeomInBody(m, g), m->geom_friction[3 * g],
+                      0, "");
+            world->geom_has_proxy_[g] = 1;
+            world->made_proxies_.push_back({GeomLabel(m, g), narrow});
+            continue;
+          }
+        } catch (const Error& e) {  // (a hull with a flat face, say: warned of instead)
+          unmade = std::string(" (no proxy could be made of it: ") + e.what() + ")";
+        }
       }
-      world->load_warnings_.push_back(
-          Where(scene_path) + ": " + name + " is " + narrow +
+      std::string warning = Where(scene_path);
+      warning.append(": ").append(name).append(" is ").append(narrow);
+      warning.append(
           ": it can sink in between them, touching none, and pass through (deformables meet "
-          "geoms at their vertices); give it a <rigidtet>" +
-          (scene.auto_proxies ? " with a tetrahedral mesh of it" : ", or leave autoproxy on") +
-          ", or refine the tetbody");
+          "geoms at their vertices)");
+      warning.append(unmade).append(
+          scene.auto_proxies
+              ? "; give it a <rigidtet> with a tetrahedral mesh of it, or refine the tetbody"
+              : "; give it a <rigidtet>, or leave autoproxy on, or refine the tetbody");
+      world->load_warnings_.push_back(std::move(warning));
     }
     try {
       world->geom_shapes_.emplace_back(g, MakeGeomShape(m, g, name));

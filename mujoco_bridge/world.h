@@ -178,8 +178,8 @@ class World {
   };
   std::vector<GeomSummary> GeomsMetByShape() const;
   // The geoms given a proxy without a <rigidtet> (<contact autoproxy>, on by
-  // default): primitive geoms narrower than the spacing of a deformable's
-  // surface vertices (GeomPassageWidth), with why ("0.012 m wide, less than
+  // default): geoms narrower than the spacing of a deformable's surface
+  // vertices (GeomPassageWidth), with why ("0.012 m wide, less than
   // the 0.033 m the surface vertices of tetbody 'block' are apart").
   const std::vector<GeomSummary>& made_proxies() const { return made_proxies_; }
   int ProxyBody(int proxy) const;

@@ -509,11 +509,12 @@ TEST(GeomShape, PassageWidthIsTheSecondSmallestExtent) {
   EXPECT_EQ(GeomPassageWidth(compiled->m, 2), std::numeric_limits<double>::infinity());
 }
 
-// Which geoms get a proxy made for them: the primitives narrower than the
-// coarsest deformable's surface vertices are apart (a block of 3 cells a
-// side: 3.8 cm on average), that meet deformables and have no <rigidtet>;
-// a narrow mesh is warned of instead. A finer block makes none.
-TEST(GeomShape, ProxiesAreMadeForPrimitivesNarrowerThanTheVertexSpacing) {
+// Which geoms get a proxy made for them: those narrower than the coarsest
+// deformable's surface vertices are apart (a block of 3 cells a side: 3.8
+// cm on average), that meet deformables and have no <rigidtet> (which a
+// mesh geom may have too: its convex hull). With autoproxy off, each is
+// warned of instead; a finer block makes none.
+TEST(GeomShape, ProxiesAreMadeForGeomsNarrowerThanTheVertexSpacing) {
   TempDir dir("tetcosim_geom_shape");
   auto load = [&](int resolution, bool auto_proxies) {
     std::string xml = R"(<mujoco>
@@ -526,10 +527,12 @@ TEST(GeomShape, ProxiesAreMadeForPrimitivesNarrowerThanTheVertexSpacing) {
     <geom name="pebble" type="mesh" mesh="pebble" pos="3 0 0.5"/>
     <body name="rod" pos="4 0 0.5"><geom name="rod" type="capsule" size="0.01 0.2"/></body>
     <body name="given" pos="5 0 0.5"><geom name="given" type="sphere" size="0.01"/></body>
+    <body name="stone" pos="6 0 0.5"><geom name="stone" type="mesh" mesh="pebble"/></body>
   </worldbody>
   <deformable>
     <contact autoproxy="AUTO"/>
     <rigidtet body="given" geom="given"/>
+    <rigidtet body="stone" geom="stone" resolution="2"/>
     <tetbody name="block" shape="box" size="0.05 0.05 0.05" resolution="CELLS"/>
   </deformable>
 </mujoco>)";
@@ -548,21 +551,87 @@ TEST(GeomShape, ProxiesAreMadeForPrimitivesNarrowerThanTheVertexSpacing) {
     return all;
   };
   std::unique_ptr<World> coarse = load(3, true);
-  ASSERT_EQ(names(*coarse), "rod ");
-  EXPECT_EQ(coarse->num_proxies(), 2);  // given's and rod's
-  EXPECT_NE(coarse->made_proxies()[0].shape.find("0.02 m wide, less than the 0.0"),
+  ASSERT_EQ(names(*coarse), "pebble rod ");
+  EXPECT_EQ(coarse->num_proxies(), 4);  // given's, stone's, pebble's and rod's
+  EXPECT_NE(coarse->made_proxies()[1].shape.find("0.02 m wide, less than the 0.0"),
             std::string::npos)
-      << coarse->made_proxies()[0].shape;
-  const std::string coarse_warnings = warnings(*coarse);
-  EXPECT_NE(coarse_warnings.find("geom 'pebble' is 0.0"), std::string::npos) << coarse_warnings;
-  EXPECT_EQ(coarse_warnings.find("'rod'"), std::string::npos) << coarse_warnings;
+      << coarse->made_proxies()[1].shape;
+  EXPECT_EQ(warnings(*coarse), "");
   std::unique_ptr<World> off = load(3, false);
   EXPECT_EQ(names(*off), "");
-  EXPECT_EQ(off->num_proxies(), 1);
-  EXPECT_NE(warnings(*off).find("geom 'rod' is 0.02 m wide"), std::string::npos) << warnings(*off);
+  EXPECT_EQ(off->num_proxies(), 2);
+  const std::string off_warnings = warnings(*off);
+  EXPECT_NE(off_warnings.find("geom 'rod' is 0.02 m wide"), std::string::npos) << off_warnings;
+  EXPECT_NE(off_warnings.find("geom 'pebble' is 0.0"), std::string::npos) << off_warnings;
   std::unique_ptr<World> fine = load(12, true);
   EXPECT_EQ(names(*fine), "");
   EXPECT_EQ(warnings(*fine), "");
+}
+
+// Oracles for the mesh of a convex hull: its tetrahedra are positive
+// (none flipped), its vertices lie in the hull (every face plane's inner
+// side), its surface vertices on the hull (on a face plane), it holds what
+// the hull does, and its surface edges are no longer than asked (or its
+// faces at their limit). Hulls: the random rock, a tetrahedron, a cube and
+// a long rod, turned.
+TEST(GeomShape, ConvexHullMeshFillsTheHull) {
+  TempDir dir("tetcosim_geom_shape");
+  std::unique_ptr<Compiled> rocks = Compile(dir, ConvexGeoms());
+  std::unique_ptr<Compiled> others = Compile(dir, R"(<mujoco>
+  <asset>
+    <mesh name="pebble" vertex="0 0 0  0.01 0 0  0 0.01 0  0 0 0.01"/>
+    <mesh name="cube" vertex="0 0 0  1 0 0  0 1 0  1 1 0  0 0 1  1 0 1  0 1 1  1 1 1"/>
+    <mesh name="rod" vertex="0 0 0  0.01 0 0  0 0.012 0  0.01 0.012 0  0 0 0.2  0.01 0 0.2
+                             0 0.012 0.2  0.01 0.012 0.2"/>
+  </asset>
+  <worldbody>
+    <geom type="mesh" mesh="pebble" euler="10 20 30"/>
+    <geom type="mesh" mesh="cube" euler="-30 10 45"/>
+    <geom type="mesh" mesh="rod" euler="0 90 0"/>
+  </worldbody>
+</mujoco>)");
+  ASSERT_NE(rocks, nullptr);
+  ASSERT_NE(others, nullptr);
+  struct Case {
+    const mjModel* m;
+    int geom;
+    double max_edge;
+  };
+  const int rock = mj_name2id(rocks->m, mjOBJ_GEOM, "rock");
+  const Case cases[] = {{rocks->m, rock, 1.0}, {rocks->m, rock, 0.05}, {others->m, 0, 1.0},
+                        {others->m, 0, 0.003}, {others->m, 1, 0.3},    {others->m, 2, 1.0},
+                        {others->m, 2, 0.005}, {others->m, 1, 2.0}};
+  for (const Case& c : cases) {
+    SCOPED_TRACE("geom " + std::to_string(c.geom) + ", edges up to " + std::to_string(c.max_edge));
+    const GeomShape shape = MakeGeomShape(c.m, c.geom, "geom");
+    const TetMesh mesh = TetMesh::Build(ConvexHullTetMesh(c.m, c.geom, c.max_edge, "geom"));
+    EXPECT_EQ(mesh.num_flipped(), 0);
+    EXPECT_TRUE(mesh.warnings().empty());
+    const double size = c.m->geom_rbound[c.geom];
+    for (int v = 0; v < mesh.num_vertices(); ++v) {
+      const Eigen::Vector3d p = mesh.positions().row(v).transpose();
+      double outmost = -std::numeric_limits<double>::infinity();
+      for (size_t i = 0; i < shape.plane_normal.size(); ++i) {
+        outmost = std::max(outmost, shape.plane_normal[i].dot(p) - shape.plane_offset[i]);
+      }
+      ASSERT_LE(outmost, 1e-9 * size) << "vertex " << v << " outside the hull";
+      if (mesh.is_surface_vertex(v)) {
+        ASSERT_GE(outmost, -1e-9 * size) << "surface vertex " << v << " inside the hull";
+      }
+    }
+    EXPECT_NEAR(mesh.total_volume(), shape.hull_volume, 1e-9 * shape.hull_volume);
+    // edges as short as asked, unless the faces would have been too many
+    double longest = 0.0;
+    for (int f = 0; f < mesh.surface().rows(); ++f) {
+      for (int k = 0; k < 3; ++k) {
+        longest = std::max(longest, (mesh.positions().row(mesh.surface()(f, k)) -
+                                     mesh.positions().row(mesh.surface()(f, (k + 1) % 3)))
+                                        .norm());
+      }
+    }
+    EXPECT_TRUE(longest <= c.max_edge || 4 * mesh.surface().rows() > 20000)
+        << longest << " m, " << mesh.surface().rows() << " faces";
+  }
 }
 
 // An arrowhead (a concave quadrilateral, extruded): its hull holds 4/3 of

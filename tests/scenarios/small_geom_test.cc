@@ -20,8 +20,8 @@ namespace {
 
 // The block is 10 cm across, 3 cells a side (vertices 3.3 cm apart), its
 // top at z = 0.1, a cell's middle right above the origin; each geom is
-// 8 to 12 mm wide and 2 to 3.2 cm long, so that it fits within a cell, and
-// placed (and turned) in its body's frame.
+// 8 to 12 mm wide and up to 3.2 cm long, so that it fits within a cell,
+// and placed (and turned) in its body's frame; the mesh is a 1 cm cube.
 struct SmallGeom {
   const char* name;
   const char* geom;    // its MJCF attributes
@@ -34,12 +34,16 @@ constexpr SmallGeom kSmallGeoms[] = {
     {"box", R"(type="box" size="0.004 0.016 0.005")", 0.005},
     {"cylinder", R"(type="cylinder" size="0.005 0.01" euler="90 0 0")", 0.005},
     {"ellipsoid", R"(type="ellipsoid" size="0.006 0.012 0.004")", 0.004},
+    {"mesh", R"(type="mesh" mesh="cube")", 0.005},
 };
 constexpr double kTop = 0.1;
 
 std::string Scene(const SmallGeom& geom, bool auto_proxy) {
   return std::string(R"(<mujoco>
   <option timestep="0.001"/>
+  <asset><mesh name="cube" vertex="-0.005 -0.005 -0.005  0.005 -0.005 -0.005  -0.005 0.005 -0.005
+    0.005 0.005 -0.005  -0.005 -0.005 0.005  0.005 -0.005 0.005  -0.005 0.005 0.005
+    0.005 0.005 0.005"/></asset>
   <worldbody>
     <geom name="floor" type="plane" size="1 1 0.1"/>
     <body name="drop" pos="0 0 0.15"><freejoint/><geom name="drop" density="2000" pos="0 0 -0.02" )") +
