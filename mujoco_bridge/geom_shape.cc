@@ -20,8 +20,7 @@ namespace {
 // the hull's size) are one plane.
 constexpr double kSamePlane = 1e-12;
 
-// ConvexHullTetMesh splits faces four ways at most until there would be
-// more than this many.
+// ConvexHullTetMesh splits faces until there are at least this many.
 constexpr size_t kMaxHullTriangles = 20000;
 
 // vertex i of mesh `mesh` (geom frame; MuJoCo keeps them in single precision)
@@ -289,35 +288,57 @@ RawMesh ConvexHullTetMesh(const mjModel* m, int geom, double max_edge, const std
     const Eigen::Vector3d normal = (points[t[1]] - points[t[0]]).cross(points[t[2]] - points[t[0]]);
     if (normal.dot(points[t[0]] - centre) < 0.0) std::swap(t[1], t[2]);
   }
-  // each face into four, corners and midpoints (which lie on the hull: on
-  // the face, or on the hull's edge), until the longest edge is at most
-  // max_edge or kMaxHullTriangles would be passed
-  auto longest = [&] {
-    double length = 0.0;
+  // Longest-edge bisection (Rivara): each pass halves the longest edge of
+  // every face whose longest edge is longer than max_edge, and each face
+  // takes the midpoints of its edges that were halved (one: two faces; two:
+  // three; three: four), so that faces meet edge to edge. Midpoints lie on
+  // the hull (on a face, or on the hull's edge); faces stay no thinner than
+  // about half as thin as they were, and only long edges are split.
+  while (triangles.size() < kMaxHullTriangles) {
+    std::map<std::pair<int, int>, int> midpoints;
     for (const std::array<int, 3>& t : triangles) {
       const int k = longest_edge(t);
-      length = std::max(length, (points[t[(k + 1) % 3]] - points[t[k]]).norm());
+      const int a = t[k], b = t[(k + 1) % 3];
+      if ((points[b] - points[a]).norm() > max_edge) midpoints.try_emplace(std::minmax(a, b), -1);
     }
-    return length;
-  };
-  while (longest() > max_edge && 4 * triangles.size() <= kMaxHullTriangles) {
-    std::map<std::pair<int, int>, int> midpoints;
+    if (midpoints.empty()) break;
+    for (auto& [edge, point] : midpoints) {
+      point = static_cast<int>(points.size());
+      points.push_back(0.5 * (points[edge.first] + points[edge.second]));
+    }
     auto midpoint = [&](int a, int b) {
-      const auto [it, inserted] = midpoints.try_emplace(std::minmax(a, b), 0);
-      if (inserted) {
-        it->second = static_cast<int>(points.size());
-        points.push_back(0.5 * (points[a] + points[b]));
-      }
-      return it->second;
+      const auto it = midpoints.find(std::minmax(a, b));
+      return it == midpoints.end() ? -1 : it->second;
     };
     std::vector<std::array<int, 3>> coarse;
     coarse.swap(triangles);
     for (const std::array<int, 3>& t : coarse) {
-      const int ab = midpoint(t[0], t[1]), bc = midpoint(t[1], t[2]), ca = midpoint(t[2], t[0]);
-      triangles.push_back({t[0], ab, ca});
-      triangles.push_back({ab, t[1], bc});
-      triangles.push_back({ca, bc, t[2]});
-      triangles.push_back({ab, bc, ca});
+      const std::array<int, 3> mid = {midpoint(t[0], t[1]), midpoint(t[1], t[2]),
+                                      midpoint(t[2], t[0])};  // (mid[k]: edge k, k + 1)
+      const int split = (mid[0] >= 0) + (mid[1] >= 0) + (mid[2] >= 0);
+      if (split == 0) {
+        triangles.push_back(t);
+      } else if (split == 3) {
+        triangles.push_back({t[0], mid[0], mid[2]});
+        triangles.push_back({mid[0], t[1], mid[1]});
+        triangles.push_back({mid[2], mid[1], t[2]});
+        triangles.push_back({mid[0], mid[1], mid[2]});
+      } else {
+        // turned so that edge 0 (corners a, b) is split, and edge 2 (c, a)
+        // is not: with one split, a m b, c; with two, edge 1 (b, c) too
+        int k = 0;
+        while (!(mid[k] >= 0 && mid[(k + 2) % 3] < 0)) ++k;
+        const int a = t[k], b = t[(k + 1) % 3], c = t[(k + 2) % 3];
+        const int ab = mid[k], bc = mid[(k + 1) % 3];
+        if (split == 1) {
+          triangles.push_back({a, ab, c});
+          triangles.push_back({ab, b, c});
+        } else {
+          triangles.push_back({ab, b, bc});
+          triangles.push_back({a, ab, bc});
+          triangles.push_back({a, bc, c});
+        }
+      }
     }
   }
   // a tetrahedron from each face to the centre (positive: the face is

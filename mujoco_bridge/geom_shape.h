@@ -83,10 +83,10 @@ Eigen::Vector3d MeshExtent(const mjModel_* m, int geom);
 double GeomPassageWidth(const mjModel_* m, int geom);
 
 // A tetrahedral mesh of mesh geom `geom`'s convex hull (geom frame): a
-// tetrahedron from the mean of the hull's vertices to each face of the hull,
-// the faces split in four (at their edges' midpoints, which lie on the
-// hull) until no edge is longer than max_edge, or there would be more than
-// 20,000 of them. Throws Error, naming `where`, for a mesh without a hull.
+// tetrahedron from each face of the hull to the mean of its vertices, the
+// faces split at the midpoints of their longest edges (which lie on the
+// hull) until no edge is longer than max_edge, or there are 20,000 faces
+// or more. Throws Error, naming `where`, for a mesh without a hull.
 RawMesh ConvexHullTetMesh(const mjModel_* m, int geom, double max_edge, const std::string& where);
 
 // The nearest point of the ellipsoid x^2/a^2 + y^2/b^2 + z^2/c^2 = 1
