@@ -137,6 +137,9 @@ void AddCheckCommand(CLI::App& app) {
     PrintLoadWarnings(*world);
     std::printf("%s: ok (%d deformables, %d MuJoCo bodies)\n", file->c_str(),
                 world->num_deformables(), world->num_rigid_bodies() - 1);
+    for (const World::GeomSummary& geom : world->made_proxies()) {
+      std::printf("  geom %s: a proxy made for it (%s)\n", geom.name.c_str(), geom.shape.c_str());
+    }
   });
 }
 

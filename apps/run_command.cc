@@ -74,6 +74,10 @@ void RunRollout(const RunOptions& options) {
   if (options.timestep > 0.0) world_options.timestep = options.timestep;
   std::unique_ptr<World> world = World::Load(options.scene, world_options);
   PrintLoadWarnings(*world);
+  for (const World::GeomSummary& geom : world->made_proxies()) {
+    std::fprintf(stderr, "tetcosim: note: geom %s is given a proxy (%s; <contact autoproxy>)\n",
+                 geom.name.c_str(), geom.shape.c_str());
+  }
   RolloutMetrics rollout_metrics(*world);
   const double dt = world->timestep();
   const long steps = options.steps > 0        ? options.steps

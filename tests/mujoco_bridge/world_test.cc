@@ -1189,6 +1189,37 @@ TEST(Commands, BadNumbersAreClearErrors) {
   EXPECT_FALSE(std::filesystem::exists(dir.path() / "out" / "steps.csv"));
 }
 
+// The proxies made for narrow geoms (<contact autoproxy>) are told: by
+// info (text and JSON), check and run.
+TEST(Commands, ProxiesMadeForNarrowGeomsAreListed) {
+  TempDir dir;
+  const std::string scene = dir.Write("ball.xml", R"(<mujoco>
+  <worldbody>
+    <body name="ball" pos="0 0 0.2"><freejoint/><geom name="ball" type="sphere" size="0.006"/></body>
+  </worldbody>
+  <deformable>
+    <tetbody name="block" shape="box" size="0.05 0.05 0.05" resolution="3"/>
+  </deformable>
+</mujoco>)");
+  const std::string tetcosim = std::string(TETCOSIM_BINARY) + " ";
+  const std::string why =
+      "(0.012 m wide, less than the 0.0379 m the surface vertices of tetbody "
+      "'block' are apart on average";
+  const std::pair<std::string, std::string> cases[] = {
+      {"info " + scene, "geom         ball: a proxy made for it " + why + ")"},
+      {"info --json " + scene, "\"why\": \"0.012 m wide, less than"},
+      {"check " + scene, "  geom ball: a proxy made for it " + why + ")"},
+      {"run " + scene + " --steps 2 --out " + (dir.path() / "out").string(),
+       "tetcosim: note: geom ball is given a proxy " + why + "; <contact autoproxy>)"},
+  };
+  for (const auto& [arguments, line] : cases) {
+    const std::string command = tetcosim + arguments + " 2>&1";
+    const auto [status, text] = RunShell(command);
+    EXPECT_EQ(status, 0) << command << "\n" << text;
+    EXPECT_NE(text.find(line), std::string::npos) << command << "\n" << text;
+  }
+}
+
 }  // namespace
 }  // namespace tetcosim
 
