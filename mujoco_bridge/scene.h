@@ -83,8 +83,8 @@ struct SceneSpec {
   // the sticking spring's stiffness k_t as a fraction of the contact's
   // normal k (ContactSettings::stick_stiffness); default 1
   std::optional<double> stick_stiffness;
-  // a geom narrower than a deformable's surface vertices are apart gets a
-  // generated <rigidtet> (World::made_proxies)
+  // a geom narrower than the gaps between a deformable's surface vertices
+  // gets a generated <rigidtet> (World::made_proxies)
   bool auto_proxies = true;
   SolverSpec solver;
   std::vector<TetBodySpec> tetbodies;

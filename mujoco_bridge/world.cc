@@ -232,53 +232,78 @@ Eigen::Isometry3d GeomInBody(const mjModel* m, int geom) {
   return X_BG;
 }
 
-// The proxy made for a geom `width` wide (GeomPassageWidth) without a
-// <rigidtet>: its surface vertices about half its width apart or closer (a
-// box's cells at most that long, up to 256 along an axis; a mesh's convex
-// hull with faces split until their edges are; a sphere or an ellipsoid at
-// level 1, 42 surface vertices; a capsule or a cylinder 3 cells across,
-// and as long along it). Null for a plane or a height field.
-std::optional<RawMesh> MadeProxyMesh(const mjModel* m, int geom, double width, long line,
+// The proxy made without a <rigidtet> for a geom narrower than the gaps
+// between a deformable's surface vertices (NarrowGeom): its surface
+// vertices at most `spacing` apart (a box's cells, up to 256 along an axis; a mesh's convex
+// hull, its faces split at their longest edges, up to 20,000 faces; a
+// sphere or an ellipsoid at level 1 to 3 of MakeSphere, whose edges are
+// 1.05 r / 2^level for a radius r; a capsule or a cylinder 3 to 64 cells
+// across, and as long along it). Null for a plane or a height field.
+std::optional<RawMesh> MadeProxyMesh(const mjModel* m, int geom, double spacing, long line,
                                      const std::string& path) {
-  // cells along an axis `extent` long
-  auto cells = [&](double extent) {
-    return static_cast<int>(std::clamp(std::ceil(2.0 * extent / width), 1.0, 256.0));
+  const double* size = m->geom_size + 3 * geom;
+  // cells along an axis `extent` long, at least `least`, at most `most`
+  auto cells = [&](double extent, double least, double most) {
+    return static_cast<int>(std::clamp(std::ceil(extent / spacing), least, most));
   };
   switch (m->geom_type[geom]) {
-    case mjGEOM_BOX: {
-      const double* size = m->geom_size + 3 * geom;
+    case mjGEOM_BOX:
       return MakeBox({size[0], size[1], size[2]},
-                     {cells(2.0 * size[0]), cells(2.0 * size[1]), cells(2.0 * size[2])}, 6);
-    }
+                     {cells(2.0 * size[0], 1.0, 256.0), cells(2.0 * size[1], 1.0, 256.0),
+                      cells(2.0 * size[2], 1.0, 256.0)},
+                     6);
     case mjGEOM_MESH:
       try {
-        return ConvexHullTetMesh(m, geom, 0.5 * width, GeomName(m, geom));
+        return ConvexHullTetMesh(m, geom, spacing, GeomName(m, geom));
       } catch (const Error& e) {
         ThrowAt(path, line, e.what());
       }
     case mjGEOM_SPHERE:
-    case mjGEOM_ELLIPSOID:
-      return GeomMesh(m, geom, 1, line, path);
+    case mjGEOM_ELLIPSOID: {
+      const double radius = std::max({size[0], size[1], size[2]});
+      const double level = std::ceil(std::log2(1.05 * radius / spacing));
+      return GeomMesh(m, geom, static_cast<int>(std::clamp(level, 1.0, 3.0)), line, path);
+    }
     case mjGEOM_CAPSULE:
     case mjGEOM_CYLINDER:
-      return GeomMesh(m, geom, 3, line, path);
+      return GeomMesh(m, geom, cells(2.0 * size[0], 3.0, 64.0), line, path);
     default:
       return std::nullopt;
   }
 }
 
-// the mean length of the edges of a mesh's surface triangles (each edge
-// of a closed surface is in two: the mean over triangle sides is the mean
-// over edges)
-double MeanSurfaceEdge(const TetMesh& mesh, const Positions& x) {
+// How far apart a mesh's surface vertices are: the mean diameter of its
+// surface triangles' circumcircles, the widest a round hole among their
+// corners can be (a grid of cells h wide split along diagonals: sqrt(2) h)
+double MeanSurfaceGap(const TetMesh& mesh, const Positions& x) {
   const Triangles& surface = mesh.surface();
   double sum = 0.0;
+  long count = 0;
   for (Eigen::Index f = 0; f < surface.rows(); ++f) {
-    for (int k = 0; k < 3; ++k) {
-      sum += (x.row(surface(f, k)) - x.row(surface(f, (k + 1) % 3))).norm();
-    }
+    const Eigen::Vector3d a = x.row(surface(f, 0)).transpose();
+    const Eigen::Vector3d b = x.row(surface(f, 1)).transpose();
+    const Eigen::Vector3d c = x.row(surface(f, 2)).transpose();
+    const double twice_area = (b - a).cross(c - a).norm();
+    if (!(twice_area > 0.0)) continue;  // (a flat triangle has no circle)
+    // (2 R = |ab| |bc| |ca| / (2 area))
+    sum += (b - a).norm() * (c - b).norm() * (a - c).norm() / twice_area;
+    ++count;
   }
-  return surface.rows() > 0 ? sum / (3.0 * static_cast<double>(surface.rows())) : 0.0;
+  return count > 0 ? sum / static_cast<double>(count) : 0.0;
+}
+
+// Why geom `geom` could pass through a deformable whose surface vertices
+// leave gaps `gap` wide (MeanSurfaceGap, of `body`), touching none of them,
+// or empty: it is narrower than the gaps (GeomPassageWidth).
+std::string NarrowGeom(const mjModel* m, int geom, double gap, const std::string& body) {
+  const double width = GeomPassageWidth(m, geom);
+  if (!(width < gap)) return "";
+  char why[256];
+  std::snprintf(why, sizeof(why),
+                "%.3g m wide, less than the %.3g m gaps between the surface vertices of tetbody "
+                "'%s'",
+                width, gap, body.c_str());
+  return why;
 }
 
 // an MJCF <skin> of a deformable's surface with one bone on the world body:
@@ -689,19 +714,19 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
 
   // the geoms deformables meet by their shapes: those that collide with
   // them (contype or conaffinity with bit 0 set: a deformable's are both 1)
-  // and have no proxy. A geom narrower than a deformable's surface vertices
-  // are apart can sink in between them, touching none, and pass through
-  // the body (a 12 mm ball fell through a block whose surface vertices are
-  // 33 mm apart, tests/scenarios/small_geom_test.cc): it gets a proxy made
-  // for it (<contact autoproxy>; a mesh, of its convex hull), whose
-  // vertices meet the deformable's tetrahedra, or with autoproxy off a
-  // warning.
-  double spacing = 0.0;  // the coarsest deformable's (MeanSurfaceEdge)
+  // and have no proxy. A geom narrower than the gaps between a deformable's
+  // surface vertices can sink in between them, touching none, and pass
+  // through the body (a 12 mm ball fell through a block whose surface
+  // vertices are 33 mm apart, tests/scenarios/small_geom_test.cc): such a
+  // geom gets a proxy made for it (<contact autoproxy>; a mesh, of its
+  // convex hull), whose vertices meet the deformable's tetrahedra, or with
+  // autoproxy off a warning (NarrowGeom).
+  double gap = 0.0;  // the coarsest deformable's (MeanSurfaceGap)
   std::string coarsest;
   for (const auto& body : world->bodies_) {
-    const double edge = MeanSurfaceEdge(body->mesh(), body->positions());
-    if (edge > spacing) {
-      spacing = edge;
+    const double body_gap = MeanSurfaceGap(body->mesh(), body->positions());
+    if (body_gap > gap) {
+      gap = body_gap;
       coarsest = body->name();
     }
   }
@@ -709,17 +734,12 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
     if (world->geom_has_proxy_[g]) continue;
     if (!(m->geom_contype[g] & 1) && !(m->geom_conaffinity[g] & 1)) continue;
     const std::string name = GeomName(m, g);
-    const double width = GeomPassageWidth(m, g);
-    if (width < spacing) {
-      char narrow[256];
-      std::snprintf(narrow, sizeof(narrow),
-                    "%.3g m wide, less than the %.3g m the surface vertices of tetbody '%s' are "
-                    "apart on average",
-                    width, spacing, coarsest.c_str());
+    if (const std::string narrow = NarrowGeom(m, g, gap, coarsest); !narrow.empty()) {
       std::string unmade;  // why no proxy could be made, if one was tried
       if (scene.auto_proxies) {
         try {
-          std::optional<RawMesh> raw = MadeProxyMesh(m, g, width, 0, scene_path);
+          std::optional<RawMesh> raw =
+              MadeProxyMesh(m, g, 0.5 * GeomPassageWidth(m, g), 0, scene_path);
           if (raw) {
             add_proxy(m->geom_bodyid[g], std::move(*raw), GeomInBody(m, g), m->geom_friction[3 * g],
                       0, "");
@@ -732,10 +752,10 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
         }
       }
       std::string warning = Where(scene_path);
-      warning.append(": ").append(name).append(" is ").append(narrow);
+      warning.append(": ").append(name).append(": ").append(narrow);
       warning.append(
-          ": it can sink in between them, touching none, and pass through (deformables meet "
-          "geoms at their vertices)");
+          " (deformables meet geoms at their vertices: it can sink in between them, touching "
+          "none, and pass through if it fits)");
       warning.append(unmade).append(
           scene.auto_proxies
               ? "; give it a <rigidtet> with a tetrahedral mesh of it, or refine the tetbody"

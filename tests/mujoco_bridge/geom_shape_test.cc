@@ -510,8 +510,8 @@ TEST(GeomShape, PassageWidthIsTheSecondSmallestExtent) {
 }
 
 // Which geoms get a proxy made for them: those narrower than the coarsest
-// deformable's surface vertices are apart (a block of 3 cells a side: 3.8
-// cm on average), that meet deformables and have no <rigidtet> (which a
+// gaps between a deformable's surface vertices (a block of 3 cells a
+// side: 4.7 cm, the cells' diagonals), that meet deformables and have no <rigidtet> (which a
 // mesh geom may have too: its convex hull). With autoproxy off, each is
 // warned of instead; a finer block makes none.
 TEST(GeomShape, ProxiesAreMadeForGeomsNarrowerThanTheVertexSpacing) {
@@ -553,7 +553,7 @@ TEST(GeomShape, ProxiesAreMadeForGeomsNarrowerThanTheVertexSpacing) {
   std::unique_ptr<World> coarse = load(3, true);
   ASSERT_EQ(names(*coarse), "pebble rod ");
   EXPECT_EQ(coarse->num_proxies(), 4);  // given's, stone's, pebble's and rod's
-  EXPECT_NE(coarse->made_proxies()[1].shape.find("0.02 m wide, less than the 0.0"),
+  EXPECT_NE(coarse->made_proxies()[1].shape.find("0.02 m wide, less than the 0.0471 m gaps"),
             std::string::npos)
       << coarse->made_proxies()[1].shape;
   EXPECT_EQ(warnings(*coarse), "");
@@ -561,8 +561,10 @@ TEST(GeomShape, ProxiesAreMadeForGeomsNarrowerThanTheVertexSpacing) {
   EXPECT_EQ(names(*off), "");
   EXPECT_EQ(off->num_proxies(), 2);
   const std::string off_warnings = warnings(*off);
-  EXPECT_NE(off_warnings.find("geom 'rod' is 0.02 m wide"), std::string::npos) << off_warnings;
-  EXPECT_NE(off_warnings.find("geom 'pebble' is 0.0"), std::string::npos) << off_warnings;
+  EXPECT_NE(off_warnings.find("geom 'rod': 0.02 m wide, less than the 0.0471 m gaps"),
+            std::string::npos)
+      << off_warnings;
+  EXPECT_NE(off_warnings.find("geom 'pebble': 0.0"), std::string::npos) << off_warnings;
   std::unique_ptr<World> fine = load(12, true);
   EXPECT_EQ(names(*fine), "");
   EXPECT_EQ(warnings(*fine), "");

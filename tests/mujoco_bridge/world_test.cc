@@ -1203,8 +1203,7 @@ TEST(Commands, ProxiesMadeForNarrowGeomsAreListed) {
 </mujoco>)");
   const std::string tetcosim = std::string(TETCOSIM_BINARY) + " ";
   const std::string why =
-      "(0.012 m wide, less than the 0.0379 m the surface vertices of tetbody "
-      "'block' are apart on average";
+      "(0.012 m wide, less than the 0.0471 m gaps between the surface vertices of tetbody 'block'";
   const std::pair<std::string, std::string> cases[] = {
       {"info " + scene, "geom         ball: a proxy made for it " + why + ")"},
       {"info --json " + scene, "\"why\": \"0.012 m wide, less than"},

@@ -1,4 +1,4 @@
-// A rigid geom narrower than a soft block's surface vertices are apart,
+// A rigid geom narrower than the gaps between a soft block's surface vertices,
 // dropped on the middle of one of its surface cells. Deformables meet a geom
 // at their vertices, so such a geom, met as a geom, touches none: it sinks
 // in between them and falls through the block. With the proxy made for it
@@ -18,10 +18,11 @@
 namespace tetcosim {
 namespace {
 
-// The block is 10 cm across, 3 cells a side (vertices 3.3 cm apart), its
-// top at z = 0.1, a cell's middle right above the origin; each geom is
-// 8 to 12 mm wide and up to 3.2 cm long, so that it fits within a cell,
-// and placed (and turned) in its body's frame; the mesh is a 1 cm cube.
+// The block is 10 cm across, 3 cells a side (vertices 3.3 cm apart, the
+// gaps between them 4.7 cm: the cells' diagonals), its top at z = 0.1, a
+// cell's middle right above the origin; each geom is 8 to 12 mm wide and
+// up to 3.2 cm long, so that it fits within a cell, or a 4 cm ball, and
+// placed (and turned) in its body's frame; the mesh is a 1 cm cube.
 struct SmallGeom {
   const char* name;
   const char* geom;    // its MJCF attributes
@@ -35,6 +36,9 @@ constexpr SmallGeom kSmallGeoms[] = {
     {"cylinder", R"(type="cylinder" size="0.005 0.01" euler="90 0 0")", 0.005},
     {"ellipsoid", R"(type="ellipsoid" size="0.006 0.012 0.004")", 0.004},
     {"mesh", R"(type="mesh" mesh="cube")", 0.005},
+    // (wider than a cell, narrower than its diagonal: it passes between
+    // the cell's four corners)
+    {"ball", R"(type="sphere" size="0.02")", 0.02},
 };
 constexpr double kTop = 0.1;
 
@@ -46,7 +50,7 @@ std::string Scene(const SmallGeom& geom, bool auto_proxy) {
     0.005 0.005 0.005"/></asset>
   <worldbody>
     <geom name="floor" type="plane" size="1 1 0.1"/>
-    <body name="drop" pos="0 0 0.15"><freejoint/><geom name="drop" density="2000" pos="0 0 -0.02" )") +
+    <body name="drop" pos="0 0 0.15"><freejoint/><geom name="drop" density="300" pos="0 0 -0.02" )") +
          geom.geom + R"(/></body>
   </worldbody>
   <deformable>
@@ -68,7 +72,8 @@ struct Outcome {
 Outcome Drop(const SmallGeom& geom, bool auto_proxy) {
   TempDir dir("tetcosim_small_geom");
   Scenario scenario(dir.Write("drop.xml", Scene(geom, auto_proxy)));
-  EXPECT_TRUE(scenario.Run(1.0)) << scenario.message();
+  // (3 s: the 4 cm ball rolls about in its dent for 2 s before it settles)
+  EXPECT_TRUE(scenario.Run(3.0)) << scenario.message();
   const World& world = scenario.world();
   const int body = world.BodyId("drop");
   Outcome outcome;
@@ -95,15 +100,18 @@ TEST(SmallGeom, RestsOnACoarseBlockThroughTheProxyMadeForIt) {
 }
 
 TEST(SmallGeom, MetAsAGeomItFallsThroughTheBlockAndIsWarnedOf) {
-  const SmallGeom& sphere = kSmallGeoms[0];
-  const Outcome outcome = Drop(sphere, /*auto_proxy=*/false);
-  EXPECT_EQ(outcome.made_proxies, 0);
-  EXPECT_NE(outcome.warnings.find("geom 'drop' is 0.012 m wide, less than the 0.0"),
-            std::string::npos)
-      << outcome.warnings;
-  EXPECT_NE(outcome.warnings.find("tetbody 'block'"), std::string::npos) << outcome.warnings;
-  // through the block, down to the floor under it
-  EXPECT_LT(outcome.z, 0.02);
+  for (const SmallGeom& sphere : {kSmallGeoms[0], kSmallGeoms[6]}) {
+    SCOPED_TRACE(sphere.name);
+    const Outcome outcome = Drop(sphere, /*auto_proxy=*/false);
+    EXPECT_EQ(outcome.made_proxies, 0);
+    EXPECT_NE(outcome.warnings.find("geom 'drop': 0."), std::string::npos) << outcome.warnings;
+    EXPECT_NE(outcome.warnings.find(" m wide, less than the 0.0471 m gaps between the surface "
+                                    "vertices of tetbody 'block'"),
+              std::string::npos)
+        << outcome.warnings;
+    // through the block, down to the floor under it
+    EXPECT_LT(outcome.z, sphere.half_height + 0.002);
+  }
 }
 
 // A soft slab dropped across a 1 cm bar fixed in the world (its surface
