@@ -20,7 +20,7 @@ namespace {
 // the hull's size) are one plane.
 constexpr double kSamePlane = 1e-12;
 
-// ConvexHullTetMesh splits faces until there are at least this many.
+// ConvexHullTetMesh stops splitting faces once there are this many.
 constexpr size_t kMaxHullTriangles = 20000;
 
 // vertex i of mesh `mesh` (geom frame; MuJoCo keeps them in single precision)
@@ -288,12 +288,13 @@ RawMesh ConvexHullTetMesh(const mjModel* m, int geom, double max_edge, const std
     const Eigen::Vector3d normal = (points[t[1]] - points[t[0]]).cross(points[t[2]] - points[t[0]]);
     if (normal.dot(points[t[0]] - centre) < 0.0) std::swap(t[1], t[2]);
   }
-  // Longest-edge bisection (Rivara): each pass halves the longest edge of
-  // every face whose longest edge is longer than max_edge, and each face
-  // takes the midpoints of its edges that were halved (one: two faces; two:
-  // three; three: four), so that faces meet edge to edge. Midpoints lie on
-  // the hull (on a face, or on the hull's edge); faces stay no thinner than
-  // about half as thin as they were, and only long edges are split.
+  // Longest-edge bisection (after Rivara): each pass halves the longest
+  // edge of every face whose longest edge is longer than max_edge, and each
+  // face takes the midpoints of its edges that were halved (one: two faces;
+  // two: three; three: four), so that faces meet edge to edge. Midpoints
+  // lie on the hull (on a face, or on the hull's edge). Only long edges are
+  // split, but thin faces stay thin (a 1 x 20 cm rod's hull at 6 mm:
+  // 11,440 faces where about 800 would do).
   while (triangles.size() < kMaxHullTriangles) {
     std::map<std::pair<int, int>, int> midpoints;
     for (const std::array<int, 3>& t : triangles) {
