@@ -40,8 +40,8 @@ void RunSceneInfo(const InfoOptions& options) {
     out["geoms_without_proxies"].push_back({{"name", geom.name}, {"shape", geom.shape}});
   }
   out["made_proxies"] = nlohmann::json::array();
-  for (const World::GeomSummary& geom : world->made_proxies()) {
-    out["made_proxies"].push_back({{"name", geom.name}, {"why", geom.shape}});
+  for (const World::MadeProxy& made : world->made_proxies()) {
+    out["made_proxies"].push_back({{"name", made.geom}, {"why", made.why}});
   }
   out["deformables"] = nlohmann::json::array();
   for (int i = 0; i < world->num_deformables(); ++i) {
@@ -64,9 +64,8 @@ void RunSceneInfo(const InfoOptions& options) {
   for (const World::GeomSummary& geom : geoms) {
     std::printf("geom         %s: %s, without a proxy\n", geom.name.c_str(), geom.shape.c_str());
   }
-  for (const World::GeomSummary& geom : world->made_proxies()) {
-    std::printf("geom         %s: a proxy made for it (%s)\n", geom.name.c_str(),
-                geom.shape.c_str());
+  for (const World::MadeProxy& made : world->made_proxies()) {
+    std::printf("geom         %s: a proxy made for it (%s)\n", made.geom.c_str(), made.why.c_str());
   }
   for (int i = 0; i < world->num_deformables(); ++i) {
     const DeformableBody& body = world->deformable(i);
@@ -137,8 +136,8 @@ void AddCheckCommand(CLI::App& app) {
     PrintLoadWarnings(*world);
     std::printf("%s: ok (%d deformables, %d MuJoCo bodies)\n", file->c_str(),
                 world->num_deformables(), world->num_rigid_bodies() - 1);
-    for (const World::GeomSummary& geom : world->made_proxies()) {
-      std::printf("  geom %s: a proxy made for it (%s)\n", geom.name.c_str(), geom.shape.c_str());
+    for (const World::MadeProxy& made : world->made_proxies()) {
+      std::printf("  geom %s: a proxy made for it (%s)\n", made.geom.c_str(), made.why.c_str());
     }
   });
 }

@@ -74,9 +74,9 @@ void RunRollout(const RunOptions& options) {
   if (options.timestep > 0.0) world_options.timestep = options.timestep;
   std::unique_ptr<World> world = World::Load(options.scene, world_options);
   PrintLoadWarnings(*world);
-  for (const World::GeomSummary& geom : world->made_proxies()) {
+  for (const World::MadeProxy& made : world->made_proxies()) {
     std::fprintf(stderr, "tetcosim: note: geom %s is given a proxy (%s; <contact autoproxy>)\n",
-                 geom.name.c_str(), geom.shape.c_str());
+                 made.geom.c_str(), made.why.c_str());
   }
   RolloutMetrics rollout_metrics(*world);
   const double dt = world->timestep();

@@ -29,16 +29,40 @@ Eigen::Vector3d MeshVertex(const mjModel* m, int mesh, int i) {
   return Eigen::Vector3d(x[0], x[1], x[2]);
 }
 
-// The planes of the faces of mesh `mesh`'s convex hull, from MuJoCo's
-// graph of it (mesh_graph: numvert, numface, vert_edgeadr (numvert),
-// vert_globalid (numvert), edge_localid (numvert + 3 numface),
-// face_globalid (3 numface), the last indices into the mesh's vertices).
-void HullPlanes(const mjModel* m, int mesh, GeomShape& shape) {
+// Mesh `mesh`'s convex hull as MuJoCo's graph of it gives it (mesh_graph:
+// numvert, numface, vert_edgeadr (numvert), vert_globalid (numvert),
+// edge_localid (numvert + 3 numface), face_globalid (3 numface), the last
+// two indices into the mesh's vertices).
+struct HullGraph {
+  int num_vertices;
+  int num_faces;
+  const int* vertex_id;  // (num_vertices)
+  const int* face;       // (3 num_faces): the corners of each face
+};
+
+HullGraph ReadHullGraph(const mjModel* m, int mesh) {
   const int* graph = m->mesh_graph + m->mesh_graphadr[mesh];
-  const int num_vertices = graph[0];
-  const int num_faces = graph[1];
-  const int* vertex_id = graph + 2 + num_vertices;
-  const int* face = graph + 2 + 3 * num_vertices + 3 * num_faces;
+  return {graph[0], graph[1], graph + 2 + graph[0], graph + 2 + 3 * graph[0] + 3 * graph[1]};
+}
+
+// The mesh of mesh geom `geom`, after checking that MuJoCo made its convex
+// hull (a mesh compiled with convexhull="false" has none): throws Error,
+// naming `where`, if not.
+int HulledMesh(const mjModel* m, int geom, const std::string& where) {
+  const int mesh = m->geom_dataid[geom];
+  if (mesh < 0 || m->mesh_graphadr[mesh] < 0) {
+    throw Error(where +
+                ": its mesh has no convex hull, which deformables collide with "
+                "as MuJoCo does; remove convexhull=\"false\" from <compiler>, or "
+                "give the geom a <rigidtet>, or keep it off deformables "
+                "(contype and conaffinity both even)");
+  }
+  return mesh;
+}
+
+// The planes of the faces of mesh `mesh`'s convex hull.
+void HullPlanes(const mjModel* m, int mesh, GeomShape& shape) {
+  const auto [num_vertices, num_faces, vertex_id, face] = ReadHullGraph(m, mesh);
   auto vertex = [&](int i) { return MeshVertex(m, mesh, i); };
   // a point inside: the mean of the hull's vertices
   Eigen::Vector3d inside = Eigen::Vector3d::Zero();
@@ -248,13 +272,8 @@ double GeomPassageWidth(const mjModel* m, int geom) {
 }
 
 RawMesh ConvexHullTetMesh(const mjModel* m, int geom, double max_edge, const std::string& where) {
-  MakeGeomShape(m, geom, where);  // (throws for a mesh without a hull)
-  const int mesh = m->geom_dataid[geom];
-  const int* graph = m->mesh_graph + m->mesh_graphadr[mesh];
-  const int num_hull = graph[0];
-  const int num_faces = graph[1];
-  const int* hull_vertex = graph + 2 + num_hull;
-  const int* face = graph + 2 + 3 * num_hull + 3 * num_faces;
+  const int mesh = HulledMesh(m, geom, where);
+  const auto [num_hull, num_faces, hull_vertex, face] = ReadHullGraph(m, mesh);
   // the hull's vertices, numbered 0 .. num_hull - 1, and their mean
   std::vector<Eigen::Vector3d> points;
   std::vector<int> local(static_cast<size_t>(m->mesh_vertnum[mesh]), -1);
@@ -366,14 +385,7 @@ GeomShape MakeGeomShape(const mjModel* m, int geom, const std::string& where) {
   shape.type = m->geom_type[geom];
   shape.size = m->geom_size + 3 * geom;
   if (shape.type == mjGEOM_MESH) {
-    const int mesh = m->geom_dataid[geom];
-    if (mesh < 0 || m->mesh_graphadr[mesh] < 0) {
-      throw Error(where +
-                  ": its mesh has no convex hull, which deformables collide with "
-                  "as MuJoCo does; remove convexhull=\"false\" from <compiler>, or "
-                  "give the geom a <rigidtet>, or keep it off deformables "
-                  "(contype and conaffinity both even)");
-    }
+    const int mesh = HulledMesh(m, geom, where);
     HullPlanes(m, mesh, shape);
     // the mesh's own volume, sum of a . (b x c) / 6 over its faces (either
     // winding, if the same throughout)

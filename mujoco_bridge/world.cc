@@ -234,11 +234,12 @@ Eigen::Isometry3d GeomInBody(const mjModel* m, int geom) {
 
 // The proxy made without a <rigidtet> for a geom narrower than the gaps
 // between a deformable's surface vertices (NarrowGeom): its surface
-// vertices at most `spacing` apart (a box's cells, up to 256 along an axis; a mesh's convex
-// hull, its faces split at their longest edges, up to 20,000 faces; a
-// sphere or an ellipsoid at level 1 to 3 of MakeSphere, whose edges are
-// 1.05 r / 2^level for a radius r; a capsule or a cylinder 3 to 64 cells
-// across, and as long along it). Null for a plane or a height field.
+// vertices at most `spacing` apart (a box's cells, up to 256 along an
+// axis; a mesh's convex hull, its faces split at their longest edges, up
+// to 20,000 faces; a sphere or an ellipsoid at level 1 to 3 of MakeSphere,
+// whose edges are 1.05 r / 2^level for a radius r; a capsule or a
+// cylinder 3 to 64 cells across, and as long along it). Null for a plane
+// or a height field. Throws Error for a mesh without a hull.
 std::optional<RawMesh> MadeProxyMesh(const mjModel* m, int geom, double spacing, long line,
                                      const std::string& path) {
   const double* size = m->geom_size + 3 * geom;
@@ -253,11 +254,7 @@ std::optional<RawMesh> MadeProxyMesh(const mjModel* m, int geom, double spacing,
                       cells(2.0 * size[2], 1.0, 256.0)},
                      6);
     case mjGEOM_MESH:
-      try {
-        return ConvexHullTetMesh(m, geom, spacing, GeomName(m, geom));
-      } catch (const Error& e) {
-        ThrowAt(path, line, e.what());
-      }
+      return ConvexHullTetMesh(m, geom, spacing, GeomName(m, geom));
     case mjGEOM_SPHERE:
     case mjGEOM_ELLIPSOID: {
       const double radius = std::max({size[0], size[1], size[2]});
@@ -292,11 +289,10 @@ double MeanSurfaceGap(const TetMesh& mesh, const Positions& x) {
   return count > 0 ? sum / static_cast<double>(count) : 0.0;
 }
 
-// Why geom `geom` could pass through a deformable whose surface vertices
-// leave gaps `gap` wide (MeanSurfaceGap, of `body`), touching none of them,
-// or empty: it is narrower than the gaps (GeomPassageWidth).
-std::string NarrowGeom(const mjModel* m, int geom, double gap, const std::string& body) {
-  const double width = GeomPassageWidth(m, geom);
+// Why a geom `width` wide (GeomPassageWidth) could pass through a
+// deformable whose surface vertices leave gaps `gap` wide (MeanSurfaceGap,
+// of `body`), touching none of them, or empty: it is narrower than the gaps.
+std::string NarrowGeom(double width, double gap, const std::string& body) {
   if (!(width < gap)) return "";
   char why[256];
   std::snprintf(why, sizeof(why),
@@ -734,12 +730,12 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
     if (world->geom_has_proxy_[g]) continue;
     if (!(m->geom_contype[g] & 1) && !(m->geom_conaffinity[g] & 1)) continue;
     const std::string name = GeomName(m, g);
-    if (const std::string narrow = NarrowGeom(m, g, gap, coarsest); !narrow.empty()) {
+    const double width = GeomPassageWidth(m, g);
+    if (const std::string narrow = NarrowGeom(width, gap, coarsest); !narrow.empty()) {
       std::string unmade;  // why no proxy could be made, if one was tried
       if (scene.auto_proxies) {
         try {
-          std::optional<RawMesh> raw =
-              MadeProxyMesh(m, g, 0.5 * GeomPassageWidth(m, g), 0, scene_path);
+          std::optional<RawMesh> raw = MadeProxyMesh(m, g, 0.5 * width, 0, scene_path);
           if (raw) {
             add_proxy(m->geom_bodyid[g], std::move(*raw), GeomInBody(m, g), m->geom_friction[3 * g],
                       0, "");

@@ -178,10 +178,15 @@ class World {
   };
   std::vector<GeomSummary> GeomsMetByShape() const;
   // The geoms given a proxy without a <rigidtet> (<contact autoproxy>, on by
-  // default): geoms narrower than the spacing of a deformable's surface
-  // vertices (GeomPassageWidth), with why ("0.012 m wide, less than
-  // the 0.033 m the surface vertices of tetbody 'block' are apart").
-  const std::vector<GeomSummary>& made_proxies() const { return made_proxies_; }
+  // default): geoms narrower than the gaps between a deformable's surface
+  // vertices (GeomPassageWidth), in geom order: the geom, named as
+  // GeomsMetByShape names it, and why ("0.012 m wide, less than the 0.0471
+  // m gaps between the surface vertices of tetbody 'block'").
+  struct MadeProxy {
+    std::string geom;
+    std::string why;
+  };
+  const std::vector<MadeProxy>& made_proxies() const { return made_proxies_; }
   int ProxyBody(int proxy) const;
   // Metrics numbering (see Interpenetration) of a collision object.
   int MetricObject(int collision_object) const;
@@ -282,7 +287,7 @@ class World {
   std::vector<std::vector<int>> attach_bodies_;  // per deformable: the body of each pin frame
   std::vector<std::unique_ptr<Proxy>> proxies_;
   std::vector<char> geom_has_proxy_;
-  std::vector<GeomSummary> made_proxies_;
+  std::vector<MadeProxy> made_proxies_;
   std::vector<std::pair<int, GeomShape>> geom_shapes_;  // (geom, its shape): geoms met by shape
   ShapeDepthSolver geom_depth_;                         // the consistent method against geoms
   std::vector<ShapePoint> geom_points_;                 // a deformable's vertices inside one geom

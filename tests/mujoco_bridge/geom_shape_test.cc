@@ -542,7 +542,7 @@ TEST(GeomShape, ProxiesAreMadeForGeomsNarrowerThanTheVertexSpacing) {
   };
   auto names = [](const World& world) {
     std::string all;
-    for (const World::GeomSummary& geom : world.made_proxies()) all += geom.name + " ";
+    for (const World::MadeProxy& made : world.made_proxies()) all += made.geom + " ";
     return all;
   };
   auto warnings = [](const World& world) {
@@ -553,9 +553,9 @@ TEST(GeomShape, ProxiesAreMadeForGeomsNarrowerThanTheVertexSpacing) {
   std::unique_ptr<World> coarse = load(3, true);
   ASSERT_EQ(names(*coarse), "pebble rod ");
   EXPECT_EQ(coarse->num_proxies(), 4);  // given's, stone's, pebble's and rod's
-  EXPECT_NE(coarse->made_proxies()[1].shape.find("0.02 m wide, less than the 0.0471 m gaps"),
+  EXPECT_NE(coarse->made_proxies()[1].why.find("0.02 m wide, less than the 0.0471 m gaps"),
             std::string::npos)
-      << coarse->made_proxies()[1].shape;
+      << coarse->made_proxies()[1].why;
   EXPECT_EQ(warnings(*coarse), "");
   std::unique_ptr<World> off = load(3, false);
   EXPECT_EQ(names(*off), "");
