@@ -572,6 +572,15 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
                   m->opt.timestep);
     ThrowAt(scene_path, 0, message);
   }
+  // MuJoCo 2.2.2 integrates a step taken in two parts (mj_step1, then our
+  // forces, then mj_step2) with Euler when RK4 is asked for
+  if (m->opt.integrator == mjINT_RK4) {
+    world->load_warnings_.push_back(
+        Where(scene_path) +
+        ": <option integrator=\"RK4\">: the scene runs with MuJoCo's Euler integrator instead "
+        "(tetcosim steps MuJoCo in two parts to apply the deformables' forces, and MuJoCo 2.2.2 "
+        "integrates such a step with Euler); set integrator=\"Euler\" or \"implicit\"");
+  }
   world->data_ = mj_makeData(m);
   mjData* d = world->data_;
   if (m->nkey > 0) mj_resetDataKeyframe(m, d, 0);  // the first keyframe is the initial state
@@ -688,13 +697,12 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
     // slide joints, 1 ms: diverged from 40 g down, stable from 45 g; with 2
     // substeps from 15 g down, stable from 18 g; at 0.2 ms, 40 g still
     // diverged). Implicit (the default), the body's tree carries the pins
-    // within the step (RigidPin). A body welded to the world (a mocap body
-    // too) takes no force.
+    // within the step (RigidPin). A body welded to the world, or to a mocap
+    // body, takes no force (MuJoCo gives it no degree of freedom).
     const double glued = deformable.model().masses().sum();
     const double carrier = m->body_subtreemass[body];
     const double factor = scene.solver.substeps > 1 ? 1.5 : 3.0;
-    if (!scene.solver.implicit_rigid && !world->RigidBodyIsStatic(body) &&
-        carrier < factor * glued) {
+    if (!scene.solver.implicit_rigid && m->body_weldid[body] != 0 && carrier < factor * glued) {
       char message[512];
       std::snprintf(message, sizeof(message),
                     "<attach>: tetbody '%s' (%.3g kg) is glued to body '%s', which with what it "
@@ -1145,7 +1153,7 @@ void World::SubstepTwist(int body, Eigen::Vector3d& omega, Eigen::Vector3d& v) {
 
 void World::AdvanceSubstepPoses(double dt) {
   for (int b = 1; b < model_->nbody; ++b) {
-    if (RigidBodyIsStatic(b)) continue;
+    if (model_->body_weldid[b] == 0) continue;  // (no velocity: fixed, or moved by mocap)
     Eigen::Vector3d omega, v;
     SubstepTwist(b, omega, v);
     substep_pose_[b] = Advance(SubstepPose(b), omega, v, dt);
@@ -1428,7 +1436,8 @@ Eigen::Vector3d World::RigidBodyCenterOfMass(int body) const {
 }
 
 bool World::RigidBodyIsStatic(int body) const {
-  return model_->body_weldid[body] == 0;
+  const mjModel* m = model_;
+  return m->body_weldid[body] == 0 && m->body_mocapid[m->body_rootid[body]] < 0;
 }
 
 void World::CollectContacts(double dt) {

@@ -196,7 +196,8 @@ class World {
   // without proxies). Used to judge both depth methods by the same ruler.
   std::vector<Interpenetration> MeasureInterpenetration();
   // Centre of mass (xipos) of a MuJoCo body, world frame; and whether the body
-  // is welded to the world (never moves).
+  // never moves: welded to the world, and not to a mocap body (which a
+  // program moves, though MuJoCo 2.2.2 gives it no velocity).
   Eigen::Vector3d RigidBodyCenterOfMass(int body) const;
   bool RigidBodyIsStatic(int body) const;
   // Velocity of the world point p_W moving with a MuJoCo body (zero for the
