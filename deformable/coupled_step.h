@@ -27,10 +27,14 @@
 // pull is released (no force at all) and the step solved again; a released
 // one that would then push is taken back, and kept. The first guess is the
 // sign at the warm start; rounds solve to kSettlingTolerance until no
-// contact changes, then once to the settings' tolerance, at most
-// kMaxContactRounds solves. After the step, every contact's `force` is the
-// force actually integrated (what a rigid side must receive, opposite;
-// zero if released).
+// contact changes, then once to the settings' tolerance. From the
+// kMaxContactRounds-th solve on, contacts are only relaxed until none
+// changes: one that pulls is released, a sliding one whose friction
+// exceeds its limit or drives its slip loses it (so a step whose
+// contacts have not settled does not end with forces that add energy).
+// After the step, every contact's `force` is the force actually
+// integrated (what a rigid side must receive, opposite; zero if
+// released).
 //
 // Static friction (contact.h, ContactSettings::stick) is decided the same
 // way: a contact with friction first sticks unless its force at the warm
@@ -109,7 +113,9 @@ struct RigidSystem {
   std::vector<RigidPin> pins;
 };
 
-// Solves per step at most: after the last, contacts are kept as they are.
+// Solves per step in which contacts may change any way; from the last of
+// them on, they are only relaxed (released, or their friction dropped),
+// each at most once.
 inline constexpr int kMaxContactRounds = 8;
 // The relative residual of the solves that only settle which contacts push.
 inline constexpr double kSettlingTolerance = 1e-3;

@@ -267,6 +267,7 @@ void DeformableBody::Assemble(const StepSettings& settings, bool matrix) {
     }
   });
   const Eigen::VectorXd& masses = model.masses();
+  double outside = 0.0;  // (squared)
   for (int v = 0; v < model.num_vertices(); ++v) {
     const double m = masses[v];
     diagonal_blocks_[v].diagonal().array() += mass_scale * m;
@@ -275,9 +276,11 @@ void DeformableBody::Assemble(const StepSettings& settings, bool matrix) {
         values[row_start[3 * v + r] + model.diagonal_slot()[v] + r] += mass_scale * m;
       }
     }
-    b_.segment<3>(3 * v) +=
-        m * v_.row(v).transpose() + dt * (m * settings.gravity + applied_.row(v).transpose());
+    const Eigen::Vector3d impulse = dt * (m * settings.gravity + applied_.row(v).transpose());
+    b_.segment<3>(3 * v) += m * v_.row(v).transpose() + impulse;
+    outside += impulse.squaredNorm();
   }
+  outside_impulse_ = std::sqrt(outside);
 }
 
 // values += s K_e at element t's slots, with the rows c_i = R b_i (4 x 3):

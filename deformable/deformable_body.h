@@ -46,7 +46,9 @@ struct StepSettings {
   Eigen::Vector3d gravity = Eigen::Vector3d(0, 0, -9.81);  // m/s^2
   LinearSolver solver = LinearSolver::kConjugateGradient;
   // CG stops at this residual (of A v+ = b, in N s) relative to the step's
-  // impulse b - (1 + dt alpha) M v: what the forces change the momentum by.
+  // impulse b - (1 + dt alpha) M v, what the forces change the momentum by,
+  // or to the momentum plus the impulse of the forces from outside the
+  // bodies if that is smaller (StepCoupled).
   double cg_tolerance = 1e-6;
   int cg_max_iterations = 1000;
   // Polar decomposition per element and step (ExtractRotation, warm-started
@@ -143,6 +145,9 @@ class DeformableBody {
   void PrepareStep(const StepSettings& settings);
   const Eigen::SparseMatrix<double, Eigen::RowMajor, int>& system_matrix() const { return A_; }
   const Eigen::VectorXd& system_rhs() const { return b_; }
+  // The size (N s) of the impulse over the step of the forces from outside
+  // the body in system_rhs(): dt (m g + applied force) over its vertices.
+  double outside_impulse() const { return outside_impulse_; }
   // Whether the last PrepareStep assembled system_matrix() (else it is
   // stale, and the products are element-wise).
   bool system_assembled() const { return assembled_; }
@@ -228,6 +233,7 @@ class DeformableBody {
   };
   std::vector<BatchSystem> batch_systems_;
   double mass_scale_ = 1.0;  // 1 + dt alpha
+  double outside_impulse_ = 0.0;
   int num_threads_ = 1;
   std::vector<Eigen::Matrix3d> diagonal_blocks_;  // per vertex
   SparseMatrix A_;
