@@ -11,10 +11,13 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <limits>
+#include <map>
 #include <optional>
 #include <sstream>
 #include <string>
 #include <type_traits>
+#include <utility>
 
 #include "mesh/error.h"
 #include "mesh/generators.h"
@@ -818,7 +821,49 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
   world->step_settings_.cg_tolerance = scene.solver.tolerance;
   world->step_settings_.cg_max_iterations = scene.solver.max_iterations;
   world->step_settings_.num_threads = options.threads;
+  world->WarnOfStartingOverlaps(scene_path);
   return world;
+}
+
+// Bodies placed inside each other (two soft cubes overlapping by half: the
+// contacts threw them apart with 12 J, and the run said ok) are warned
+// of, a pair each, when the deepest point of one in the other is more than
+// 5% of the thinner deformable's thickness (the rollout metrics' sticking
+// threshold; a body resting on another is not deep in it).
+void World::WarnOfStartingOverlaps(const std::string& scene_path) {
+  const int num_deformables = static_cast<int>(bodies_.size());
+  std::map<std::pair<int, int>, Interpenetration> deepest;  // by pair, lower object first
+  for (const Interpenetration& point : MeasureInterpenetration()) {
+    const std::pair<int, int> pair = std::minmax(point.inside, point.penetrated);
+    auto [it, added] = deepest.emplace(pair, point);
+    if (!added && point.depth > it->second.depth) it->second = point;
+  }
+  auto thickness = [&](int object) {
+    if (object >= num_deformables) return std::numeric_limits<double>::infinity();
+    const Positions& x = bodies_[object]->positions();
+    return (x.colwise().maxCoeff() - x.colwise().minCoeff()).minCoeff();
+  };
+  auto label = [&](int object) {
+    if (object < num_deformables) return "tetbody '" + bodies_[object]->name() + "'";
+    const int body = object - num_deformables;
+    return body == 0 ? std::string("the world's geoms") : "body '" + RigidBodyName(body) + "'";
+  };
+  for (const auto& [pair, point] : deepest) {
+    const double thinner = std::min(thickness(pair.first), thickness(pair.second));
+    if (!(point.depth > 0.05 * thinner)) continue;
+    // (named by a deformable of the pair, on that tetbody's line)
+    const int deformable = point.inside < num_deformables ? point.inside : point.penetrated;
+    char message[512];
+    std::snprintf(message, sizeof(message),
+                  "%s starts %.3g m inside %s, %.0f%% of the thinner deformable's thickness "
+                  "(%.3g m): contact pushes them apart at once, as hard as that depth; place "
+                  "them apart",
+                  label(point.inside).c_str(), point.depth, label(point.penetrated).c_str(),
+                  100.0 * point.depth / thinner, thinner);
+    load_warnings_.push_back(
+        Where(scene_path, scene_.tetbodies[static_cast<size_t>(deformable)].line) +
+        ": <tetbody name=\"" + bodies_[deformable]->name() + "\">: " + message);
+  }
 }
 
 double World::time() const {

@@ -222,6 +222,7 @@ class World {
 
   // mesh's warnings, as load_warnings() gives them: where, `element`, `file`
   // (empty for a generated shape)
+  void WarnOfStartingOverlaps(const std::string& scene_path);
   void AddLoadWarnings(const TetMesh& mesh, const std::string& scene_path, long line,
                        const std::string& element, const std::string& file);
   void UpdateProxies();

@@ -533,7 +533,7 @@ TEST(GeomShape, ProxiesAreMadeForGeomsNarrowerThanTheVertexSpacing) {
     <contact autoproxy="AUTO"/>
     <rigidtet body="given" geom="given"/>
     <rigidtet body="stone" geom="stone" resolution="2"/>
-    <tetbody name="block" shape="box" size="0.05 0.05 0.05" resolution="CELLS"/>
+    <tetbody name="block" shape="box" size="0.05 0.05 0.05" resolution="CELLS" pos="0 0 0.05"/>
   </deformable>
 </mujoco>)";
     xml.replace(xml.find("AUTO"), 4, auto_proxies ? "true" : "false");

@@ -1035,6 +1035,51 @@ TEST(WorldLoad, RungeKuttaIsWarnedToRunAsEuler) {
   EXPECT_GT(euler->contacts().size(), 0u) << "the cube landed";
 }
 
+// Bodies placed inside each other are warned of, a pair each, on the line
+// of a tetbody of the pair, with the depth (the exact one, as the metrics
+// measure it) against the thinner deformable's thickness: two 10 cm cubes
+// overlapping by 4 cm, a cube 2 cm into the floor plane; a cube resting on
+// the floor, 0.1 mm into it, and cubes side by side are not. No bundled
+// scene has such a pair (the paper's spheres had 15, up to 5 mm deep).
+TEST(WorldLoad, BodiesStartingInsideEachOtherAreWarnedOf) {
+  TempDir dir;
+  auto warnings_of = [&](const std::string& name, double b_x, double c_z) {
+    char scene[1024];
+    std::snprintf(scene, sizeof(scene), R"(<mujoco>
+  <worldbody><geom name="floor" type="plane" size="1 1 0.1"/></worldbody>
+  <deformable>
+    <tetbody name="a" shape="box" size="0.05 0.05 0.05" pos="0 0 0.3"/>
+    <tetbody name="b" shape="box" size="0.05 0.05 0.05" pos="%.17g 0 0.3"/>
+    <tetbody name="c" shape="box" size="0.02 0.02 0.02" pos="0.5 0 %.17g"/>
+  </deformable>
+</mujoco>)",
+                  b_x, c_z);
+    return World::Load(dir.Write(name, scene))->load_warnings();
+  };
+  EXPECT_TRUE(warnings_of("apart.xml", 0.1, 0.0199).empty());
+  const std::vector<std::string> warnings = warnings_of("inside.xml", 0.06, 0.0);
+  ASSERT_EQ(warnings.size(), 2u);
+  const std::string where = dir.path().string() + "/inside.xml:";
+  EXPECT_EQ(warnings[0].rfind(where + "4: <tetbody name=\"a\">: tetbody '", 0), 0u) << warnings[0];
+  EXPECT_NE(warnings[0].find(" starts 0.04 m inside tetbody '"), std::string::npos) << warnings[0];
+  EXPECT_NE(warnings[0].find("40% of the thinner deformable's thickness (0.1 m)"),
+            std::string::npos)
+      << warnings[0];
+  EXPECT_EQ(
+      warnings[1].rfind(where + "6: <tetbody name=\"c\">: tetbody 'c' starts 0.02 m inside "
+                                "the world's geoms, 50% of the thinner deformable's thickness "
+                                "(0.04 m)",
+                        0),
+      0u)
+      << warnings[1];
+  for (const char* scene :
+       {"paper/cubes", "paper/spheres", "paper/mixed", "paper/rigid", "scenes/cube_on_box",
+        "scenes/gripper", "scenes/terrain", "bench/jelly", "bench/tray"}) {
+    const std::string path = std::string(TETCOSIM_SOURCE_DIR) + "/models/" + scene + ".xml";
+    EXPECT_TRUE(World::Load(path)->load_warnings().empty()) << scene;
+  }
+}
+
 TEST(RunCommand, OutputsParse) {
   TempDir dir;
   std::string command = std::string(TETCOSIM_BINARY) + " run " + TETCOSIM_SOURCE_DIR +
