@@ -30,9 +30,8 @@
 // contact changes, then once to the settings' tolerance. From the
 // kMaxContactRounds-th solve on, contacts are only relaxed until none
 // changes: one that pulls and so adds energy is released, a sliding one
-// whose friction exceeds its limit and drives its slip is cut to the
-// limit, then dropped (so a step whose contacts have not settled does not
-// end with forces that add energy).
+// whose friction drives its slip sticks (so a step whose contacts have not
+// settled does not end with forces that add energy).
 // After the step, every contact's `force` is the force actually
 // integrated (what a rigid side must receive, opposite; zero if
 // released).
@@ -115,8 +114,8 @@ struct RigidSystem {
 };
 
 // Solves per step in which contacts may change any way; from the last of
-// them on, they are only relaxed (released, or their friction cut), each
-// at most twice.
+// them on, they are only relaxed (released, or made to stick), each at
+// most twice.
 inline constexpr int kMaxContactRounds = 8;
 // The relative residual of the solves that only settle which contacts push.
 inline constexpr double kSettlingTolerance = 1e-3;

@@ -383,7 +383,8 @@ TEST(DeformableBody, AFreeSteelCubeSpinsWithoutGainingEnergy) {
   EXPECT_GT(lowest, start * (1.0 - 1e-3));
 }
 
-// The same cube dropped 17 cm onto a floor with friction at 2 and 1 ms:
+// The same cube dropped 17 cm onto a floor with friction at 2 and 1 ms,
+// straight and tilted three ways:
 // its contacts (kappa = 3.3e13 Pa/m) swing from solve to solve, and some
 // steps reach kMaxContactRounds unsettled. They end without contacts that
 // pull or friction beyond its limit (coupled_step.h), so its kinetic and
@@ -396,31 +397,39 @@ TEST(DeformableBody, AFreeSteelCubeSpinsWithoutGainingEnergy) {
 TEST(DeformableBody, AStiffCubeTumblingOnAFloorNeverGainsEnergy) {
   auto model = Model("box:size=0.03:res=3", Material{2e11, 0.3, 7800, 0, 0});
   const double kappa = DefaultContactPressureStiffness(*model);
+  const Eigen::Vector3d tilts[] = {Eigen::Vector3d::Zero(), Eigen::Vector3d(0.3, 0.2, 0.1),
+                                   Eigen::Vector3d(0.7, -0.4, 0.5)};  // rad, about their axis
   int unsettled = 0;
   for (double dt : {2e-3, 1e-3}) {
-    DeformableBody body(model, "steel");
-    body.Reset(At({0, 0, 0.2}));
-    StepSettings settings;
-    settings.dt = dt;
-    auto energy = [&] { return body.KineticEnergy() + body.GravitationalEnergy(settings.gravity); };
-    const double start = energy();
-    double highest = start;
-    DeformableBody* bodies[1] = {&body};
-    const int steps = static_cast<int>(std::lround(2.0 / dt));
-    for (int s = 0; s < steps; ++s) {
-      std::vector<ContactPoint> contacts;
-      AddHalfSpaceContacts(0, body, Eigen::Vector3d::UnitZ(), 0.0, kappa, 1.0, contacts);
-      const CoupledStepReport report = StepCoupled(bodies, contacts, ContactSettings{}, settings);
-      ASSERT_EQ(report.status, StepStatus::kOk);
-      unsettled += report.rounds > kMaxContactRounds;
-      highest = std::max(highest, energy());
+    for (const Eigen::Vector3d& tilt : tilts) {
+      DeformableBody body(model, "steel");
+      Eigen::Isometry3d X_WB = At({0, 0, 0.2});
+      if (!tilt.isZero()) X_WB.rotate(Eigen::AngleAxisd(tilt.norm(), tilt.normalized()));
+      body.Reset(X_WB);
+      StepSettings settings;
+      settings.dt = dt;
+      auto energy = [&] {
+        return body.KineticEnergy() + body.GravitationalEnergy(settings.gravity);
+      };
+      const double start = energy();
+      double highest = start;
+      DeformableBody* bodies[1] = {&body};
+      const int steps = static_cast<int>(std::lround(2.0 / dt));
+      for (int s = 0; s < steps; ++s) {
+        std::vector<ContactPoint> contacts;
+        AddHalfSpaceContacts(0, body, Eigen::Vector3d::UnitZ(), 0.0, kappa, 1.0, contacts);
+        const CoupledStepReport report = StepCoupled(bodies, contacts, ContactSettings{}, settings);
+        ASSERT_EQ(report.status, StepStatus::kOk);
+        unsettled += report.rounds > kMaxContactRounds;
+        highest = std::max(highest, energy());
+      }
+      std::printf(
+          "steel cube on a floor at %g ms, tilted %.2f rad: energy %.4g J at the start, at most "
+          "%.4g J; kinetic energy at the end %.3g J\n",
+          1e3 * dt, tilt.norm(), start, highest, body.KineticEnergy());
+      EXPECT_LT(highest, start + 1e-3) << dt << " s, tilted " << tilt.norm();
+      EXPECT_LT(body.KineticEnergy(), 1e-9) << dt << " s, tilted " << tilt.norm();
     }
-    std::printf(
-        "steel cube on a floor at %g ms: energy %.4g J at the start, at most %.4g J; "
-        "kinetic energy at the end %.3g J\n",
-        1e3 * dt, start, highest, body.KineticEnergy());
-    EXPECT_LT(highest, start + 1e-3) << dt;
-    EXPECT_LT(body.KineticEnergy(), 1e-9) << dt;
   }
   std::printf("%d steps past %d solves\n", unsettled, kMaxContactRounds);
   EXPECT_GT(unsettled, 0) << "the case this test is for";
