@@ -426,6 +426,14 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   // the slip gave 43 J again in another build. Relaxing every pull took
   // the paper's 120 spheres at 8 ms from rest to creeping.)
   bool releasing = false;
+  // (what the rounds' tolerance takes that the contacts do not change: the
+  // deformables' momentum, and the squared impulse from outside them)
+  const double body_momentum = momentum.head(offset[num_bodies]).norm();
+  double bodies_outside = 0.0;
+  for (int k = 0; k < num_bodies; ++k) {
+    const double body_outside = bodies[k]->outside_impulse();
+    bodies_outside += body_outside * body_outside;
+  }
   auto relax = [&](size_t c, const Eigen::Vector3d& force, const Eigen::VectorXd& v_plus) {
     Coupling& coupling = couplings[c];
     if (!coupling.active) return false;
@@ -564,16 +572,11 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     // a second
     Eigen::VectorXd impulse = b - momentum;
     filter(impulse);
-    double outside = 0.0;  // (squared)
-    for (int k = 0; k < num_bodies; ++k) {
-      const double body_outside = bodies[k]->outside_impulse();
-      outside += body_outside * body_outside;
-    }
+    double outside = bodies_outside;  // (squared)
     for (size_t c = 0; c < contacts.size(); ++c) {
       if (couplings[c].active) outside += contact_rhs[c].squaredNorm();
     }
     for (int t = 0; t < num_trees; ++t) outside += rigid->trees[t].impulse.squaredNorm();
-    const double body_momentum = momentum.head(offset[num_bodies]).norm();
     const double reference = std::max(std::min(impulse.norm(), body_momentum + std::sqrt(outside)),
                                       1e-6 * body_momentum);
     const double threshold = (precise ? settings.cg_tolerance : kSettlingTolerance) * reference;

@@ -14,13 +14,12 @@ double AngleDegrees(const Eigen::Vector3d& u, const Eigen::Vector3d& v) {
   return std::acos(std::clamp(u.dot(v), -1.0, 1.0)) * kDegrees;
 }
 
-// smallest extent of the bounding box of a mesh's rest positions
+}  // namespace
+
 double Thickness(const TetMesh& mesh) {
   const Positions& x = mesh.positions();
   return (x.colwise().maxCoeff() - x.colwise().minCoeff()).minCoeff();
 }
-
-}  // namespace
 
 double MaxSpeed(const World& world) {
   double speed = 0.0;

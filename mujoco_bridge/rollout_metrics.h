@@ -105,6 +105,9 @@ struct RolloutSummary {
 
 // The fastest deformable vertex or moving rigid body centre of mass (m/s).
 double MaxSpeed(const World& world);
+// An object's thickness, as the thresholds take it: the smallest extent of
+// the bounding box of its mesh's rest positions (m).
+double Thickness(const TetMesh& mesh);
 
 class RolloutMetrics {
  public:

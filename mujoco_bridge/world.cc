@@ -25,6 +25,7 @@
 #include "mesh/same_bits.h"
 #include "mujoco_bridge/geom_shape.h"
 #include "mujoco_bridge/model_names.h"
+#include "mujoco_bridge/rollout_metrics.h"
 
 namespace tetcosim {
 namespace {
@@ -827,11 +828,12 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
 
 // Bodies placed inside each other (two soft cubes overlapping by half: the
 // contacts threw them apart with 12 J, and the run said ok) are warned
-// of, a pair each, when the deepest point of one in the other is more than
-// 5% of the thinner deformable's thickness (the rollout metrics' sticking
-// threshold; a body resting on another is not deep in it).
+// of, a pair each, when the deepest point of one in the other is deeper
+// than the rollout metrics' sticking threshold, 5% of the thinner
+// deformable's thickness (a body resting on another is not deep in it).
 void World::WarnOfStartingOverlaps(const std::string& scene_path) {
   const int num_deformables = static_cast<int>(bodies_.size());
+  const double fraction = RolloutMetricsOptions{}.sticking_fraction;
   std::map<std::pair<int, int>, Interpenetration> deepest;  // by pair, lower object first
   for (const Interpenetration& point : MeasureInterpenetration()) {
     const std::pair<int, int> pair = std::minmax(point.inside, point.penetrated);
@@ -839,9 +841,8 @@ void World::WarnOfStartingOverlaps(const std::string& scene_path) {
     if (!added && point.depth > it->second.depth) it->second = point;
   }
   auto thickness = [&](int object) {
-    if (object >= num_deformables) return std::numeric_limits<double>::infinity();
-    const Positions& x = bodies_[object]->positions();
-    return (x.colwise().maxCoeff() - x.colwise().minCoeff()).minCoeff();
+    return object < num_deformables ? Thickness(bodies_[object]->mesh())
+                                    : std::numeric_limits<double>::infinity();
   };
   auto label = [&](int object) {
     if (object < num_deformables) return "tetbody '" + bodies_[object]->name() + "'";
@@ -850,7 +851,7 @@ void World::WarnOfStartingOverlaps(const std::string& scene_path) {
   };
   for (const auto& [pair, point] : deepest) {
     const double thinner = std::min(thickness(pair.first), thickness(pair.second));
-    if (!(point.depth > 0.05 * thinner)) continue;
+    if (!(point.depth > fraction * thinner)) continue;
     // (named by a deformable of the pair, on that tetbody's line)
     const int deformable = point.inside < num_deformables ? point.inside : point.penetrated;
     char message[512];

@@ -220,9 +220,10 @@ class World {
   struct Proxy;
   struct GeomContact;
 
+  // a load warning for each pair of bodies that start deep inside each other
+  void WarnOfStartingOverlaps(const std::string& scene_path);
   // mesh's warnings, as load_warnings() gives them: where, `element`, `file`
   // (empty for a generated shape)
-  void WarnOfStartingOverlaps(const std::string& scene_path);
   void AddLoadWarnings(const TetMesh& mesh, const std::string& scene_path, long line,
                        const std::string& element, const std::string& file);
   void UpdateProxies();
