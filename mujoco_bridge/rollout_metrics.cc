@@ -67,10 +67,44 @@ Eigen::Vector3d RolloutMetrics::CenterVelocity(const World& world, int object) c
   return world.RigidBodyPointVelocity(b, world.RigidBodyCenterOfMass(b));
 }
 
+bool RolloutMetrics::CenterInside(const World& world, int object) const {
+  if (object >= num_deformables_) return true;
+  const DeformableBody& body = world.deformable(object);
+  const Eigen::Vector3d p = body.CenterOfMass();
+  const Positions& x = body.positions();
+  auto Volume6 = [](const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c,
+                    const Eigen::Vector3d& d) { return (b - a).cross(c - a).dot(d - a); };
+  const Tets& tets = body.mesh().tets();
+  for (int t = 0; t < tets.rows(); ++t) {
+    const Eigen::Vector3d v0 = x.row(tets(t, 0)).transpose(), v1 = x.row(tets(t, 1)).transpose();
+    const Eigen::Vector3d v2 = x.row(tets(t, 2)).transpose(), v3 = x.row(tets(t, 3)).transpose();
+    const double sign = Volume6(v0, v1, v2, v3) >= 0.0 ? 1.0 : -1.0;  // inverted ones too
+    if (sign * Volume6(p, v1, v2, v3) >= 0.0 && sign * Volume6(v0, p, v2, v3) >= 0.0 &&
+        sign * Volume6(v0, v1, p, v3) >= 0.0 && sign * Volume6(v0, v1, v2, p) >= 0.0) {
+      return true;
+    }
+  }
+  return false;
+}
+
+bool RolloutMetrics::WhollyPast(const World& world, int object, const Eigen::Vector3d& point,
+                                const Eigen::Vector3d& direction) const {
+  if (object >= num_deformables_) return false;
+  const Positions& x = world.deformable(object).positions();
+  return x.rows() > 0 && ((x.rowwise() - point.transpose()) * direction).maxCoeff() < 0.0;
+}
+
 bool RolloutMetrics::Flipped(const World& world, int a, int b, const Episode& episode) const {
   if (episode.n0.isZero()) return false;
-  return (Center(world, a, episode.anchor_a) - Center(world, b, episode.anchor_b)).dot(episode.n0) <
-         0.0;
+  const Eigen::Vector3d center_a = Center(world, a, episode.anchor_a);
+  const Eigen::Vector3d center_b = Center(world, b, episode.anchor_b);
+  if ((center_a - center_b).dot(episode.n0) >= 0.0) return false;
+  // the centres swapped sides; so did the objects if both are compact (their
+  // centres inside them), or one lies wholly past the other's centre (a
+  // sheet draped over a post, its centre in the air below the post's top,
+  // lies on it)
+  return (CenterInside(world, a) && CenterInside(world, b)) ||
+         WhollyPast(world, a, center_b, episode.n0) || WhollyPast(world, b, center_a, -episode.n0);
 }
 
 void RolloutMetrics::AddEvent(const World& world, const std::string& kind, int a, int b,

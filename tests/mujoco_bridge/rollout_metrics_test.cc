@@ -94,6 +94,118 @@ TEST(RolloutMetrics, FallingThroughTheFloorIsAPassThrough) {
   EXPECT_EQ(bounce.Summarize().pass_through_pairs, 0);
 }
 
+// A soft sheet dropped across a support drapes over it: its centre of mass
+// ends below the support's top (a static geom) or its centre (a free box,
+// a soft block), but it lies on the support and has not passed through it.
+// The support, 8 cm wide and 20 cm tall: a static post (the world, whose
+// centre is the contact's), a free box on the floor, a soft block. (Judged
+// by the centres alone, each was a pass-through.)
+TEST(RolloutMetrics, ASheetDrapedOverASupportHasNotPassedThroughIt) {
+  TempDir dir("tetcosim_metrics");
+  struct Support {
+    const char* name;
+    const char* bodies;      // in <worldbody>
+    const char* deformable;  // in <deformable>
+    double top;              // m: the height the sheet's centre ends below
+  };
+  const Support supports[] = {
+      {"post", R"(<geom name="post" type="box" size="0.04 0.1 0.1" pos="0 0 0.1"/>)", "", 0.2},
+      {"box", R"(<body name="box" pos="0 0 0.1"><freejoint/>
+                   <geom type="box" size="0.04 0.1 0.1" mass="2"/></body>)",
+       "", 0.1},
+      {"block", "",
+       R"(<tetbody name="block" shape="box" size="0.04 0.1 0.1" resolution="2 4 4" pos="0 0 0.1"
+                   young="1e5"/>)",
+       0.1}};
+  for (const Support& support : supports) {
+    SCOPED_TRACE(support.name);
+    char text[2000];
+    std::snprintf(text, sizeof(text), R"(<mujoco>
+  <option timestep="0.002"/>
+  <worldbody><geom name="floor" type="plane" size="1 1 0.1"/>%s</worldbody>
+  <deformable>
+    <contact friction="0.3"/>
+    <tetbody name="sheet" shape="box" size="0.35 0.05 0.005" resolution="70 3 1" pos="0 0 0.21"
+             density="1000" young="2e4" damping="0.5 0.001"/>
+    %s
+  </deformable>
+</mujoco>)",
+                  support.bodies, support.deformable);
+    Scenario scenario(dir.Write("drape.xml", text));
+    ASSERT_TRUE(scenario.Run(1.5)) << scenario.message();
+    World& world = scenario.world();
+    const int sheet = world.DeformableIndex("sheet");
+    // draped: its centre below the support's top or centre, its middle on it
+    ASSERT_LT(world.deformable(sheet).CenterOfMass().z(), support.top - 0.01);
+    const Positions& x = world.deformable(sheet).positions();
+    for (int v = 0; v < x.rows(); ++v) {
+      if (std::abs(x(v, 0)) < 0.01) {
+        EXPECT_GT(x(v, 2), 0.19) << "vertex " << v;
+      }
+    }
+    RolloutSummary s = scenario.Summarize();
+    EXPECT_EQ(s.pass_through_pairs, 0);
+    for (const PairEvent& event : s.events) EXPECT_NE(event.kind, "pass-through");
+  }
+}
+
+// Two of the paper's 20-tetrahedron spheres passing into each other (next
+// to no contact stiffness), caught just after their centres crossed, with
+// the depth rule (pass_through_fraction) out of the way: neither lies past
+// the other's centre, but both have their centres inside themselves, so
+// the swap counts. (Two coarse bodies can be half inside each other, edges
+// through faces, with no vertex deep: the pile of the paper's spheres had
+// such a pair, centres 1.45 cm apart, its deepest vertex 2.4 mm.)
+TEST(RolloutMetrics, CompactBodiesWhoseCentresCrossedHavePassedThrough) {
+  TempDir dir("tetcosim_metrics");
+  RolloutMetricsOptions metrics;
+  metrics.pass_through_fraction = 1e3;
+  Scenario scenario(dir.Write("spheres.xml", R"(<mujoco>
+  <option timestep="0.0005" gravity="0 0 0"/>
+  <deformable>
+    <contact stiffness="1e-3"/>
+    <tetbody name="a" shape="sphere" size="0.018" resolution="0" pos="-0.02 0 0" vel="0.5 0 0"/>
+    <tetbody name="b" shape="sphere" size="0.018" resolution="0" pos="0.02 0 0" vel="-0.5 0 0"
+             euler="30 40 50"/>
+  </deformable>
+</mujoco>)"),
+                    {}, metrics);
+  World& world = scenario.world();
+  auto crossed = [](const World& w) {
+    return w.deformable(0).CenterOfMass().x() - w.deformable(1).CenterOfMass().x() > 0.001;
+  };
+  ASSERT_TRUE(scenario.RunUntil(crossed, 0.1)) << scenario.message();
+  for (int i = 0; i < 2; ++i) {  // neither past the other's centre
+    const Positions& x = world.deformable(i).positions();
+    const double other = world.deformable(1 - i).CenterOfMass().x();
+    const double sign = i == 0 ? 1.0 : -1.0;  // a came from -x, b from +x
+    ASSERT_GT((sign * (x.col(0).array() - other)).maxCoeff(), 0.0);
+  }
+  RolloutSummary s = scenario.Summarize();
+  EXPECT_EQ(s.pass_through_pairs, 1);
+}
+
+// A soft ring (its centre in its hole, outside itself) dropped through a
+// thin floor with next to no contact stiffness: it ends wholly below the
+// floor and out of contact, a pass-through.
+TEST(RolloutMetrics, ARingFallingThroughAThinFloorIsAPassThrough) {
+  TempDir dir("tetcosim_metrics");
+  Scenario scenario(dir.Write("ring.xml", R"(<mujoco>
+  <option timestep="0.002" gravity="0 0 0"/>
+  <worldbody><geom name="floor" type="box" size="0.2 0.2 0.005" pos="0 0 -0.005"/></worldbody>
+  <deformable>
+    <contact stiffness="1e-3"/>
+    <tetbody name="ring" shape="torus" size="0.05 0.01" pos="0 0 0.011" vel="0 0 -2"/>
+  </deformable>
+</mujoco>)"));
+  ASSERT_TRUE(scenario.Run(0.1)) << scenario.message();
+  const Positions& x = scenario.world().deformable(0).positions();
+  ASSERT_LT(x.col(2).maxCoeff(), -0.01) << "below the floor";
+  RolloutSummary s = scenario.Summarize();
+  EXPECT_EQ(s.residual_points, 0);
+  EXPECT_EQ(s.pass_through_pairs, 1);
+}
+
 // A cube left 2 cm deep in the floor with next to no contact stiffness,
 // at rest: sticking, whether the floor is a geom (met by its signed
 // distance or the consistent method's crossings) or a mesh (a proxy). A
