@@ -102,8 +102,10 @@ void RunRollout(const RunOptions& options) {
                "unresolved_points,solver_iterations,contact_rounds,released_contacts,"
                "stuck_contacts,wall_ms\n";
   bodies_csv << "frame,time,body,x,y,z,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz\n";
-  // (a rate so low that not even one frame falls in the run: one frame, the
-  // first; the count of steps between frames would not fit in a long)
+  // Frames: the initial state, then every frame_every steps, and the final
+  // state (unless the run diverged). (A rate so low that not even one frame
+  // falls in the run: the initial and the final state; the count of steps
+  // between frames would not fit in a long.)
   const double steps_per_frame = std::round(1.0 / (options.fps * dt));
   const long frame_every = steps_per_frame < static_cast<double>(steps)
                                ? std::max(1L, static_cast<long>(steps_per_frame))
@@ -124,6 +126,33 @@ void RunRollout(const RunOptions& options) {
   double max_depth = 0.0;
   long done = 0;
   int frame = 0;
+  long framed = -1;  // the steps done at the last frame
+  char line[512];
+  auto write_frame = [&] {
+    for (int b = 1; b < world->num_rigid_bodies(); ++b) {
+      Eigen::Vector3d x = world->RigidBodyPosition(b);
+      Eigen::Quaterniond q = world->RigidBodyOrientation(b);
+      Eigen::Vector3d v = world->RigidBodyLinearVelocity(b);
+      Eigen::Vector3d w = world->RigidBodyAngularVelocity(b);
+      std::snprintf(line, sizeof(line),
+                    "%d,%.9g,%s,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g\n",
+                    frame, world->time(), world->RigidBodyName(b).c_str(), x.x(), x.y(), x.z(),
+                    q.w(), q.x(), q.y(), q.z(), v.x(), v.y(), v.z(), w.x(), w.y(), w.z());
+      bodies_csv << line;
+    }
+    if (options.vtk) WriteVtkFrame(*world, out / "vtk", frame, series);
+    if (renderer) {
+      char name[32];
+      std::snprintf(name, sizeof(name), "%05d.png", frame);
+      WritePng((out / "frames" / name).string(), renderer->Render(), renderer->width(),
+               renderer->height());
+    }
+    ++frame;
+    framed = done;
+    steps_csv.flush();
+    bodies_csv.flush();
+  };
+  write_frame();
   auto start = std::chrono::steady_clock::now();
   for (long step = 0; step < steps; ++step) {
     if (interrupted) {
@@ -151,7 +180,6 @@ void RunRollout(const RunOptions& options) {
     max_points = std::max(max_points, metrics.colliding_points);
     max_depth = std::max(max_depth, metrics.max_depth);
     Eigen::Vector3d p = world->LinearMomentum();
-    char line[512];
     std::snprintf(
         line, sizeof(line),
         "%ld,%.9g,%d,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.6g,%.6g,%d,%d,%d,%d,%d,%d,%.6g\n",
@@ -162,36 +190,15 @@ void RunRollout(const RunOptions& options) {
         metrics.contact_rounds, metrics.released_contacts, metrics.stuck_contacts,
         metrics.total_ms);
     steps_csv << line;
-    if (step % frame_every == 0) {
-      for (int b = 1; b < world->num_rigid_bodies(); ++b) {
-        Eigen::Vector3d x = world->RigidBodyPosition(b);
-        Eigen::Quaterniond q = world->RigidBodyOrientation(b);
-        Eigen::Vector3d v = world->RigidBodyLinearVelocity(b);
-        Eigen::Vector3d w = world->RigidBodyAngularVelocity(b);
-        std::snprintf(
-            line, sizeof(line),
-            "%d,%.9g,%s,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g\n", frame,
-            world->time(), world->RigidBodyName(b).c_str(), x.x(), x.y(), x.z(), q.w(), q.x(),
-            q.y(), q.z(), v.x(), v.y(), v.z(), w.x(), w.y(), w.z());
-        bodies_csv << line;
-      }
-      if (options.vtk) WriteVtkFrame(*world, out / "vtk", frame, series);
-      if (renderer) {
-        char name[32];
-        std::snprintf(name, sizeof(name), "%05d.png", frame);
-        WritePng((out / "frames" / name).string(), renderer->Render(), renderer->width(),
-                 renderer->height());
-      }
-      ++frame;
-      steps_csv.flush();
-      bodies_csv.flush();
-    }
+    if (done % frame_every == 0) write_frame();
     if (terminal && (step % 50 == 0 || step + 1 == steps)) {
       std::fprintf(stderr, "\r[%3d%%] step %ld / %ld, t = %.3f s",
                    static_cast<int>(100 * (step + 1) / steps), step + 1, steps, world->time());
     }
   }
   if (terminal) std::fprintf(stderr, "\n");
+  // the final state, unless it is a frame already or not finite
+  if (status != "diverged" && framed != done) write_frame();
   steps_csv.close();
   bodies_csv.close();
   const double wall =

@@ -1137,8 +1137,25 @@ TEST(RunCommand, OutputsParse) {
   EXPECT_DOUBLE_EQ(summary["mean_contact_rounds"].get<double>(), rounds / 100.0);
   // (the cube lands and bounces: some contacts leave the box)
   EXPECT_GT(released, 0);
+  // frames: the initial state, then every 10 steps (50 per second), the
+  // last the final state, in bodies.csv (one row per frame: one MuJoCo
+  // body) and vtk/
+  std::ifstream bodies(dir.path() / "out" / "bodies.csv");
+  std::getline(bodies, header);
+  int frames = 0;
+  while (std::getline(bodies, line)) {
+    std::stringstream row(line);
+    std::string frame, time;
+    std::getline(row, frame, ',');
+    std::getline(row, time, ',');
+    EXPECT_EQ(std::stoi(frame), frames) << line;
+    EXPECT_NEAR(std::stod(time), 0.02 * frames, 1e-9) << line;
+    ++frames;
+  }
+  EXPECT_EQ(frames, 11);
   EXPECT_TRUE(std::filesystem::exists(dir.path() / "out" / "vtk" / "series.pvd"));
-  EXPECT_TRUE(std::filesystem::exists(dir.path() / "out" / "vtk" / "cube_0.vtu"));
+  EXPECT_TRUE(std::filesystem::exists(dir.path() / "out" / "vtk" / "cube_10.vtu"));
+  EXPECT_FALSE(std::filesystem::exists(dir.path() / "out" / "vtk" / "cube_11.vtu"));
   if (std::system("/usr/bin/python3 -c 'import meshio' 2>/dev/null") == 0) {
     std::string check =
         "/usr/bin/python3 -c \"import meshio; m = meshio.read('" +
@@ -1187,6 +1204,15 @@ TEST(RunCommand, TerminatedRunKeepsValidOutputs) {
     ++rows;
   }
   EXPECT_EQ(rows, steps);
+  // the last frame is the state the run stopped in
+  std::ifstream bodies_csv(out + "/bodies.csv");
+  std::string last;
+  while (std::getline(bodies_csv, line)) last = line;
+  std::stringstream row(last);
+  std::string frame, time;
+  std::getline(row, frame, ',');
+  std::getline(row, time, ',');
+  EXPECT_NEAR(std::stod(time), summary["sim_time"].get<double>(), 1e-6) << last;
 }
 
 // Under nohup (SIGHUP ignored from the start) a hangup does not stop the
