@@ -96,12 +96,16 @@ void RunRollout(const RunOptions& options) {
 
   std::ofstream steps_csv(out / "steps.csv");
   std::ofstream bodies_csv(out / "bodies.csv");
-  if (!steps_csv || !bodies_csv) throw Error(options.out + ": cannot write the output files");
+  std::ofstream deformables_csv(out / "deformables.csv");
+  if (!steps_csv || !bodies_csv || !deformables_csv) {
+    throw Error(options.out + ": cannot write the output files");
+  }
   steps_csv << "step,time,colliding_points,max_depth,mean_depth,kinetic_deformable,kinetic_rigid,"
                "px,py,pz,direction_change_max_deg,neighbour_angle_mean_deg,fallback_points,"
                "unresolved_points,solver_iterations,contact_rounds,released_contacts,"
                "stuck_contacts,wall_ms\n";
   bodies_csv << "frame,time,body,x,y,z,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz\n";
+  deformables_csv << "frame,time,body,cx,cy,cz,vx,vy,vz,kinetic,xmin,ymin,zmin,xmax,ymax,zmax\n";
   // Frames: the initial state, then every frame_every steps, and the final
   // state (unless the run diverged). (A rate so low that not even one frame
   // falls in the run: the initial and the final state; the count of steps
@@ -140,6 +144,19 @@ void RunRollout(const RunOptions& options) {
                     q.w(), q.x(), q.y(), q.z(), v.x(), v.y(), v.z(), w.x(), w.y(), w.z());
       bodies_csv << line;
     }
+    for (int i = 0; i < world->num_deformables(); ++i) {
+      const DeformableBody& body = world->deformable(i);
+      const Eigen::Vector3d c = body.CenterOfMass();
+      const Eigen::Vector3d v = body.LinearMomentum() / body.model().total_mass();
+      const Eigen::Vector3d low = body.positions().colwise().minCoeff().transpose();
+      const Eigen::Vector3d high = body.positions().colwise().maxCoeff().transpose();
+      std::snprintf(line, sizeof(line),
+                    "%d,%.9g,%s,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g\n",
+                    frame, world->time(), body.name().c_str(), c.x(), c.y(), c.z(), v.x(), v.y(),
+                    v.z(), body.KineticEnergy(), low.x(), low.y(), low.z(), high.x(), high.y(),
+                    high.z());
+      deformables_csv << line;
+    }
     if (options.vtk) WriteVtkFrame(*world, out / "vtk", frame, series);
     if (renderer) {
       char name[32];
@@ -151,6 +168,7 @@ void RunRollout(const RunOptions& options) {
     framed = done;
     steps_csv.flush();
     bodies_csv.flush();
+    deformables_csv.flush();
   };
   write_frame();
   auto start = std::chrono::steady_clock::now();
@@ -201,6 +219,7 @@ void RunRollout(const RunOptions& options) {
   if (status != "diverged" && framed != done) write_frame();
   steps_csv.close();
   bodies_csv.close();
+  deformables_csv.close();
   const double wall =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
@@ -260,8 +279,8 @@ void RunRollout(const RunOptions& options) {
       rollout.pass_through_pairs, rollout.sticking_pairs, rollout.residual_max_depth,
       rollout.residual_mean_depth, rollout.final_kinetic_energy,
       rollout.at_rest ? " (at rest)" : "");
-  std::printf("  wrote %s/summary.json, steps.csv, bodies.csv%s\n", options.out.c_str(),
-              options.vtk ? ", vtk/" : "");
+  std::printf("  wrote %s/summary.json, steps.csv, bodies.csv, deformables.csv%s\n",
+              options.out.c_str(), options.vtk ? ", vtk/" : "");
   if (options.video && frame > 0) {
     if (std::system("command -v ffmpeg > /dev/null 2>&1") != 0) {
       std::fprintf(
@@ -303,7 +322,8 @@ void AddRunCommand(CLI::App& app) {
   run->add_option("--method", options->method, "consistent or closest (default: the scene's)")
       ->check(CLI::IsMember({"consistent", "closest"}));
   run->add_option("--out", options->out, "Output folder (default out)");
-  run->add_option("--fps", options->fps, "Frames per second for bodies.csv and VTK (default 30)")
+  run->add_option("--fps", options->fps,
+                  "Frames per second for bodies.csv, deformables.csv, VTK and PNG (default 30)")
       ->check(PositiveFiniteNumber());
   run->add_flag("--vtk", options->vtk,
                 "Write the deformable meshes per frame (vtk/*.vtu, series.pvd)");

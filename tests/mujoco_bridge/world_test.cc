@@ -5,10 +5,12 @@
 #include <sys/wait.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <numbers>
 #include <set>
 #include <sstream>
 #include <string>
@@ -1117,6 +1119,7 @@ TEST(RunCommand, OutputsParse) {
   // releases no more contacts than it has, nor sticks more than it keeps
   int rows = 0;
   long iterations = 0, rounds = 0, released = 0;
+  std::vector<double> kinetic(1, 0.0);  // the deformable's, after each step
   while (std::getline(steps, line)) {
     std::vector<std::string> fields;
     std::stringstream row(line);
@@ -1127,6 +1130,7 @@ TEST(RunCommand, OutputsParse) {
     EXPECT_GE(step_rounds, colliding > 0 ? 2 : 1) << line;
     EXPECT_LE(step_released, colliding) << line;
     EXPECT_LE(std::stoi(fields[17]), colliding - step_released) << line << ": stuck, not released";
+    kinetic.push_back(std::stod(fields[5]));
     iterations += std::stol(fields[14]);
     rounds += step_rounds;
     released += step_released;
@@ -1150,6 +1154,41 @@ TEST(RunCommand, OutputsParse) {
     std::getline(row, time, ',');
     EXPECT_EQ(std::stoi(frame), frames) << line;
     EXPECT_NEAR(std::stod(time), 0.02 * frames, 1e-9) << line;
+    ++frames;
+  }
+  EXPECT_EQ(frames, 11);
+  // deformables.csv, a row per deformable per frame: the cube's kinetic
+  // energy is steps.csv's; until it lands (at 0.1 s) it falls without
+  // turning or deforming: its energy is that of its centre's velocity
+  // (0.512 kg) and its box keeps its height
+  std::ifstream deformables(dir.path() / "out" / "deformables.csv");
+  std::getline(deformables, header);
+  EXPECT_EQ(header, "frame,time,body,cx,cy,cz,vx,vy,vz,kinetic,xmin,ymin,zmin,xmax,ymax,zmax");
+  frames = 0;
+  double height = 0.0;
+  while (std::getline(deformables, line)) {
+    std::vector<std::string> fields;
+    std::stringstream row(line);
+    for (std::string field; std::getline(row, field, ',');) fields.push_back(field);
+    ASSERT_EQ(fields.size(), 16u) << line;
+    EXPECT_EQ(std::stoi(fields[0]), frames) << line;
+    EXPECT_EQ(fields[2], "cube");
+    const double energy = std::stod(fields[9]);
+    EXPECT_NEAR(energy, kinetic[10 * frames], 1e-8 * kinetic[10 * frames]) << line;
+    if (frames == 0) {  // the 8 cm cube turned by euler="10 5 0": its box
+      const double a = 10 * std::numbers::pi / 180, b = 5 * std::numbers::pi / 180;
+      EXPECT_NEAR(std::stod(fields[13]) - std::stod(fields[10]), 0.08 * (std::cos(b) + std::sin(b)),
+                  1e-9);
+      height = std::stod(fields[15]) - std::stod(fields[12]);
+      EXPECT_NEAR(height,
+                  0.08 * (std::cos(a) * std::sin(b) + std::sin(a) + std::cos(a) * std::cos(b)),
+                  1e-9);
+    }
+    if (std::stod(fields[1]) < 0.09) {
+      const Eigen::Vector3d v(std::stod(fields[6]), std::stod(fields[7]), std::stod(fields[8]));
+      EXPECT_NEAR(energy, 0.5 * 0.512 * v.squaredNorm(), 1e-6 * energy + 1e-15) << line;
+      EXPECT_NEAR(std::stod(fields[15]) - std::stod(fields[12]), height, 1e-9) << line;
+    }
     ++frames;
   }
   EXPECT_EQ(frames, 11);
