@@ -5,6 +5,8 @@
 #include <limits>
 #include <set>
 
+#include "collision/geometry.h"
+
 namespace tetcosim {
 namespace {
 
@@ -72,15 +74,12 @@ bool RolloutMetrics::CenterInside(const World& world, int object) const {
   const DeformableBody& body = world.deformable(object);
   const Eigen::Vector3d p = body.CenterOfMass();
   const Positions& x = body.positions();
-  auto Volume6 = [](const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c,
-                    const Eigen::Vector3d& d) { return (b - a).cross(c - a).dot(d - a); };
   const Tets& tets = body.mesh().tets();
   for (int t = 0; t < tets.rows(); ++t) {
-    const Eigen::Vector3d v0 = x.row(tets(t, 0)).transpose(), v1 = x.row(tets(t, 1)).transpose();
-    const Eigen::Vector3d v2 = x.row(tets(t, 2)).transpose(), v3 = x.row(tets(t, 3)).transpose();
-    const double sign = Volume6(v0, v1, v2, v3) >= 0.0 ? 1.0 : -1.0;  // inverted ones too
-    if (sign * Volume6(p, v1, v2, v3) >= 0.0 && sign * Volume6(v0, p, v2, v3) >= 0.0 &&
-        sign * Volume6(v0, v1, p, v3) >= 0.0 && sign * Volume6(v0, v1, v2, p) >= 0.0) {
+    Eigen::Vector4d l;  // (inverted tetrahedra too: the coordinates do not depend on the sign)
+    if (TetBarycentric(x.row(tets(t, 0)), x.row(tets(t, 1)), x.row(tets(t, 2)), x.row(tets(t, 3)),
+                       p, l) &&
+        l.minCoeff() >= 0.0) {
       return true;
     }
   }
