@@ -147,7 +147,7 @@ void RunRollout(const RunOptions& options) {
     for (int i = 0; i < world->num_deformables(); ++i) {
       const DeformableBody& body = world->deformable(i);
       const Eigen::Vector3d c = body.CenterOfMass();
-      const Eigen::Vector3d v = body.LinearMomentum() / body.model().total_mass();
+      const Eigen::Vector3d v = body.CenterOfMassVelocity();
       const Eigen::Vector3d low = body.positions().colwise().minCoeff().transpose();
       const Eigen::Vector3d high = body.positions().colwise().maxCoeff().transpose();
       std::snprintf(line, sizeof(line),

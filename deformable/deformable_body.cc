@@ -650,4 +650,8 @@ Eigen::Vector3d DeformableBody::CenterOfMass() const {
          model_->total_mass();
 }
 
+Eigen::Vector3d DeformableBody::CenterOfMassVelocity() const {
+  return LinearMomentum() / model_->total_mass();
+}
+
 }  // namespace tetcosim

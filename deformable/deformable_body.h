@@ -183,6 +183,8 @@ class DeformableBody {
   Eigen::Vector3d LinearMomentum() const;
   Eigen::Vector3d AngularMomentum() const;
   Eigen::Vector3d CenterOfMass() const;
+  // Velocity of the centre of mass: momentum over mass (m/s).
+  Eigen::Vector3d CenterOfMassVelocity() const;
   // Elastic forces at the current positions (#V x 3, newtons), updating the
   // element rotations from their warm start.
   Positions ElasticForces();

@@ -60,10 +60,7 @@ Eigen::Vector3d RolloutMetrics::Center(const World& world, int object,
 }
 
 Eigen::Vector3d RolloutMetrics::CenterVelocity(const World& world, int object) const {
-  if (object < num_deformables_) {
-    const DeformableBody& body = world.deformable(object);
-    return body.LinearMomentum() / body.model().total_mass();
-  }
+  if (object < num_deformables_) return world.deformable(object).CenterOfMassVelocity();
   const int b = object - num_deformables_;
   if (static_[object]) return Eigen::Vector3d::Zero();
   return world.RigidBodyPointVelocity(b, world.RigidBodyCenterOfMass(b));

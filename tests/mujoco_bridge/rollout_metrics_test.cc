@@ -149,6 +149,28 @@ TEST(RolloutMetrics, ASheetDrapedOverASupportHasNotPassedThroughIt) {
   }
 }
 
+// A scene without gravity, of 0.5 ms steps and next to no contact
+// stiffness, with `rigid` in its worldbody and `soft` in its deformable
+// section.
+std::string Closing(const std::string& rigid, const std::string& soft) {
+  return R"(<mujoco>
+  <option timestep="0.0005" gravity="0 0 0"/>
+  <worldbody>)" +
+         rigid + R"(</worldbody>
+  <deformable>
+    <contact stiffness="1e-3"/>)" +
+         soft + R"(</deformable>
+</mujoco>)";
+}
+
+// Metrics without the depth rule (pass_through_fraction): only the
+// centres' rule can count a pass-through.
+RolloutMetricsOptions CentresAlone() {
+  RolloutMetricsOptions metrics;
+  metrics.pass_through_fraction = 1e3;
+  return metrics;
+}
+
 // Two of the paper's 20-tetrahedron spheres passing into each other (next
 // to no contact stiffness), caught just after their centres crossed, with
 // the depth rule (pass_through_fraction) out of the way: neither lies past
@@ -158,18 +180,11 @@ TEST(RolloutMetrics, ASheetDrapedOverASupportHasNotPassedThroughIt) {
 // such a pair, centres 1.45 cm apart, its deepest vertex 2.4 mm.)
 TEST(RolloutMetrics, CompactBodiesWhoseCentresCrossedHavePassedThrough) {
   TempDir dir("tetcosim_metrics");
-  RolloutMetricsOptions metrics;
-  metrics.pass_through_fraction = 1e3;
-  Scenario scenario(dir.Write("spheres.xml", R"(<mujoco>
-  <option timestep="0.0005" gravity="0 0 0"/>
-  <deformable>
-    <contact stiffness="1e-3"/>
+  Scenario scenario(dir.Write("spheres.xml", Closing("", R"(
     <tetbody name="a" shape="sphere" size="0.018" resolution="0" pos="-0.02 0 0" vel="0.5 0 0"/>
     <tetbody name="b" shape="sphere" size="0.018" resolution="0" pos="0.02 0 0" vel="-0.5 0 0"
-             euler="30 40 50"/>
-  </deformable>
-</mujoco>)"),
-                    {}, metrics);
+             euler="30 40 50"/>)")),
+                    {}, CentresAlone());
   World& world = scenario.world();
   auto crossed = [](const World& w) {
     return w.deformable(0).CenterOfMass().x() - w.deformable(1).CenterOfMass().x() > 0.001;
@@ -183,6 +198,32 @@ TEST(RolloutMetrics, CompactBodiesWhoseCentresCrossedHavePassedThrough) {
   }
   RolloutSummary s = scenario.Summarize();
   EXPECT_EQ(s.pass_through_pairs, 1);
+}
+
+// The same with a rigid ball (a free MuJoCo body) passing into the soft
+// one: a rigid body is taken as compact, so the swap of centres counts
+// while neither lies past the other's centre.
+TEST(RolloutMetrics, ARigidBodyWhoseCentreCrossedASoftOnesHasPassedThroughIt) {
+  TempDir dir("tetcosim_metrics");
+  Scenario scenario(
+      dir.Write("balls.xml",
+                Closing(R"(<body name="ball" pos="-0.02 0 0"><freejoint/>
+                                <geom type="sphere" size="0.015" mass="0.02"/></body>)",
+                        R"(<tetbody name="soft" shape="sphere" size="0.018" resolution="1"
+                                    pos="0.02 0 0" vel="-0.5 0 0"/>)")),
+      {}, CentresAlone());
+  World& world = scenario.world();
+  auto crossed = [](const World& w) {
+    return w.RigidBodyCenterOfMass(1).x() - w.deformable(0).CenterOfMass().x() > 0.001;
+  };
+  ASSERT_TRUE(scenario.RunUntil(crossed, 0.2)) << scenario.message();
+  ASSERT_EQ(world.RigidBodyName(1), "ball");
+  const Positions& x = world.deformable(0).positions();  // not past the ball's centre
+  ASSERT_GT(x.col(0).maxCoeff(), world.RigidBodyCenterOfMass(1).x());
+  RolloutSummary s = scenario.Summarize();
+  EXPECT_EQ(s.pass_through_pairs, 1);
+  ASSERT_FALSE(s.events.empty());
+  EXPECT_EQ(s.events[0].kind, "pass-through");
 }
 
 // A soft ring (its centre in its hole, outside itself) dropped through a
