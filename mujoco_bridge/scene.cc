@@ -228,7 +228,8 @@ class SceneParser {
           scene.stick_stiffness = Number(child, "stickstiffness", 1e-3, 1e3);
           scene.auto_proxies = Bool(child, "autoproxy", true);
         } else if (kind == "solver") {
-          CheckAttributes(child, {"substeps", "linear", "tolerance", "maxiter", "rigid"});
+          CheckAttributes(child,
+                          {"substeps", "linear", "tolerance", "maxiter", "rigid", "constraints"});
           scene.solver.substeps = static_cast<int>(Number(child, "substeps", 1, 1000).value_or(1));
           if (const char* rigid = child->Attribute("rigid")) {
             const std::string r(rigid);
@@ -236,6 +237,13 @@ class SceneParser {
               Fail(child, "rigid must be implicit or explicit");
             }
             scene.solver.implicit_rigid = r == "implicit";
+          }
+          if (const char* constraints = child->Attribute("constraints")) {
+            const std::string c(constraints);
+            if (c != "linearized" && c != "lagged") {
+              Fail(child, "constraints must be linearized or lagged");
+            }
+            scene.solver.linearize_constraints = c == "linearized";
           }
           if (const char* linear = child->Attribute("linear")) {
             std::string l(linear);

@@ -64,6 +64,10 @@ struct SolverSpec {
   // MuJoCo bodies in contact solved with the deformables' step (implicit on
   // both sides), or moving at their start velocity through it (explicit)
   bool implicit_rigid = true;
+  // MuJoCo's constraints on those bodies linearized about their active set
+  // in the step (World::LinearizeConstraints), or taken as the force MuJoCo
+  // solved for them (lagged)
+  bool linearize_constraints = true;
   LinearSolver linear_solver = LinearSolver::kConjugateGradient;
   double tolerance = 1e-6;
   int max_iterations = 1000;

@@ -1007,6 +1007,24 @@ void World::FindOtherForces() {
   const mjModel* m = model_;
   mjData* d = data_;
   mj_fwdActuation(m, d);
+  if (LinearizedConstraints()) {
+    // this step's constraint rows solved with the last step's forces of
+    // ours: their active set, and the forces of the rows not linearized
+    mj_fwdAcceleration(m, d);
+    mj_fwdConstraint(m, d);
+    row_tree_.assign(static_cast<size_t>(d->nefc), -2);
+    const bool sparse = mj_isSparse(m) != 0;
+    for (int i = 0; i < d->nefc; ++i) {
+      int& tree = row_tree_[static_cast<size_t>(i)];
+      const int count = sparse ? d->efc_J_rownnz[i] : m->nv;
+      for (int k = 0; k < count; ++k) {
+        const int dof = sparse ? d->efc_J_colind[d->efc_J_rowadr[i] + k] : k;
+        if (!sparse && d->efc_J[static_cast<size_t>(i) * m->nv + k] == 0.0) continue;
+        const int root = m->body_rootid[m->dof_bodyid[dof]];
+        tree = tree == -2 || tree == root ? root : -1;
+      }
+    }
+  }
   other_forces_.assign(m->nv, 0.0);
   for (int b = 1; b < m->nbody; ++b) {
     const double* user = user_.data() + 6 * b;
@@ -1018,6 +1036,45 @@ void World::FindOtherForces() {
                         d->qfrc_applied[i] + d->qfrc_constraint[i];
   }
   other_forces_ready_ = true;
+}
+
+bool World::LinearizedConstraints() const {
+  return scene_.solver.implicit_rigid && scene_.solver.linearize_constraints &&
+         model_->opt.solver != mjSOL_PGS;
+}
+
+// MuJoCo's force of a constraint row i in its quadratic state (an equality,
+// an active limit or contact, friction within its cone) is D_i (aref_i -
+// J_i a) (D_i: efc_D, aref_i: its reference acceleration, from the state at
+// the step's start), so with the active set fixed the tree's motion solves
+// (M + sum D_i J_i^T J_i) a = f + sum J_i^T D_i aref_i: the rows add D_i
+// J_i^T J_i to its mass and dt J_i^T D_i aref_i to its impulse, in place of
+// their solved force. The rows that are not quadratic (satisfied, friction
+// loss at its limit, an elliptic cone's edge) and those on several trees
+// keep the force MuJoCo solved for them with the last step's forces of ours.
+void World::LinearizeConstraints(int root, int first, double dt, RigidTree& tree) {
+  const mjModel* m = model_;
+  const mjData* d = data_;
+  const int size = static_cast<int>(tree.velocity.size());
+  const bool sparse = mj_isSparse(m) != 0;
+  Eigen::VectorXd row(size);
+  for (int i = 0; i < d->nefc; ++i) {
+    if (row_tree_[static_cast<size_t>(i)] != root || d->efc_state[i] != mjCNSTRSTATE_QUADRATIC) {
+      continue;
+    }
+    row.setZero();
+    if (sparse) {
+      for (int k = 0; k < d->efc_J_rownnz[i]; ++k) {
+        const int address = d->efc_J_rowadr[i] + k;
+        row[d->efc_J_colind[address] - first] = d->efc_J[address];
+      }
+    } else {
+      row = Eigen::Map<const Eigen::VectorXd>(d->efc_J + static_cast<size_t>(i) * m->nv + first,
+                                              size);
+    }
+    tree.mass.noalias() += d->efc_D[i] * row * row.transpose();
+    tree.impulse += dt * (d->efc_D[i] * d->efc_aref[i] - d->efc_force[i]) * row;
+  }
 }
 
 // Between substeps, the trees this substep did not solve move on under the
@@ -1083,6 +1140,7 @@ void World::BuildRigidSystem(double dt) {
       }
       tree.velocity = Eigen::Map<const Eigen::VectorXd>(substep_velocity_.data() + first, size);
       tree.impulse = dt * Eigen::Map<const Eigen::VectorXd>(other_forces_.data() + first, size);
+      if (LinearizedConstraints()) LinearizeConstraints(root, first, dt, tree);
     }
     jacobian_.resize(3 * static_cast<size_t>(m->nv));
     mj_jac(m, d, jacobian_.data(), nullptr, p_W.data(), body);

@@ -245,7 +245,11 @@ class World {
   // The rigid system of this substep (dt), its trees at substep_velocity_:
   // the trees in contact and those carrying attachments' pins.
   void BuildRigidSystem(double dt);
-  void FindOtherForces();                // other_forces_, once a step
+  void FindOtherForces();  // other_forces_, once a step
+  bool LinearizedConstraints() const;
+  // MuJoCo's constraints on tree `root` (degrees of freedom first..first +
+  // size) linearized about their active set, into its block of the system
+  void LinearizeConstraints(int root, int first, double dt, RigidTree& tree);
   void AdvanceUnsolvedTrees(double dt);  // (substeps)
   void AddRigidForce(int body, const Eigen::Vector3d& point, const Eigen::Vector3d& force);
   // The MuJoCo body that pin `pin` of deformable `deformable` follows, or
@@ -325,6 +329,9 @@ class World {
   RigidSystem rigid_;
   std::vector<double> jacobian_;      // 3 x nv, row-major
   std::vector<double> other_forces_;  // nv
+  // each MuJoCo constraint row's tree (its root body), -1 for a row on
+  // several trees (FindOtherForces, with the rows linearized)
+  std::vector<int> row_tree_;
   // nv: the generalized velocities a substep's trees start at: MuJoCo's at
   // the step's start, each tree's as the last substep that solved it
   // predicted (MuJoCo steps once, after the substeps: its velocities stay
