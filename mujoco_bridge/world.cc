@@ -1666,7 +1666,9 @@ void World::Step() {
     }
     metrics_.collision_ms += MillisecondsSince(phase);
     KeepReactionPoints();
-    BuildRigidSystem(settings.dt);
+    phase = Clock::now();
+    BuildRigidSystem(settings.dt);  // (MuJoCo's actuation and constraint solve, its Jacobians)
+    metrics_.mujoco_ms += MillisecondsSince(phase);
     phase = Clock::now();
     ContactSettings contact_settings = contact_settings_;
     RestoreFrictionSprings();
