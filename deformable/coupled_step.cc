@@ -168,9 +168,12 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   std::vector<Eigen::Matrix3d> blocks(static_cast<size_t>(offset[num_bodies] / 3));
   std::vector<char> pinned(n, 0);
   Eigen::VectorXd delta = Eigen::VectorXd::Zero(n);
-  // a rigid tree: M q+ = M q + impulse + its contacts' share
+  // a rigid tree: M q+ = M q + impulse + its contacts' and constraints' share
+  std::vector<std::vector<int>> constraint_switches(num_trees);
   for (int t = 0; t < num_trees; ++t) {
-    const RigidTree& tree = rigid->trees[t];
+    RigidTree& tree = rigid->trees[t];
+    for (RigidConstraint& constraint : tree.constraints) constraint.released = false;
+    constraint_switches[static_cast<size_t>(t)].assign(tree.constraints.size(), 0);
     const Eigen::Index size = tree.velocity.size();
     v.segment(tree_offset[t], size) = tree.velocity;
     b.segment(tree_offset[t], size) = tree.mass * tree.velocity + tree.impulse;
@@ -333,9 +336,15 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     for_each_body(
         [&](int k) { bodies[k]->MultiplySystem(x.data() + offset[k], y.data() + offset[k]); });
     for (int t = 0; t < num_trees; ++t) {
-      const Eigen::MatrixXd& mass = rigid->trees[t].mass;
-      y.segment(tree_offset[t], mass.rows()).noalias() =
-          mass * x.segment(tree_offset[t], mass.rows());
+      const RigidTree& tree = rigid->trees[t];
+      const Eigen::Index size = tree.mass.rows();
+      y.segment(tree_offset[t], size).noalias() = tree.mass * x.segment(tree_offset[t], size);
+      for (const RigidConstraint& constraint : tree.constraints) {
+        if (constraint.released) continue;
+        y.segment(tree_offset[t], size) +=
+            constraint.mass * constraint.jacobian.dot(x.segment(tree_offset[t], size)) *
+            constraint.jacobian;
+      }
     }
     for (const Coupling& coupling : couplings) {
       if (coupling.active) coupling.AddJt(coupling.gain * coupling.Jv(x), y);
@@ -456,7 +465,19 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     // each tree's diagonal block of A, M + its active contacts' J^T G J
     // (inverted in place below unless the trees are eliminated)
     std::vector<Eigen::MatrixXd> tree_diagonal(num_trees);
-    for (int t = 0; t < num_trees; ++t) tree_diagonal[t] = rigid->trees[t].mass;
+    for (int t = 0; t < num_trees; ++t) {
+      const RigidTree& tree = rigid->trees[t];
+      tree_diagonal[t] = tree.mass;
+      // its constraints: D J^T J, and D J^T (J v + dt aref) into b
+      for (const RigidConstraint& constraint : tree.constraints) {
+        if (constraint.released) continue;
+        tree_diagonal[t].noalias() +=
+            constraint.mass * constraint.jacobian * constraint.jacobian.transpose();
+        b.segment(tree_offset[t], tree.mass.rows()) +=
+            constraint.mass * (constraint.jacobian.dot(tree.velocity) + dt * constraint.reference) *
+            constraint.jacobian;
+      }
+    }
     rigid_couplings.clear();
     for (size_t c = 0; c < contacts.size(); ++c) {
       const Coupling& coupling = couplings[c];
@@ -644,6 +665,27 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
       }
       contacts[c].force = coupling.active ? force : Eigen::Vector3d::Zero();
       report.released_contacts += !coupling.active;
+    }
+    // the trees' unilateral constraints whose force at this solution has
+    // the other sign than their state: held ones that pull, released ones
+    // that push (the rigid solver's active set; switched at most
+    // kMaxConstraintSwitches times, so that the rounds end)
+    for (int t = 0; t < num_trees; ++t) {
+      RigidTree& tree = rigid->trees[t];
+      const auto v_tree = v_new.segment(tree_offset[t], tree.velocity.size());
+      for (size_t i = 0; i < tree.constraints.size(); ++i) {
+        RigidConstraint& constraint = tree.constraints[i];
+        if (!constraint.unilateral) continue;
+        // (dt times its force over D)
+        const bool pushes =
+            constraint.jacobian.dot(tree.velocity - v_tree) + dt * constraint.reference >= 0.0;
+        int& switched = constraint_switches[static_cast<size_t>(t)][i];
+        if (pushes == constraint.released && switched < kMaxConstraintSwitches) {
+          constraint.released = !pushes;
+          ++switched;
+          changed = true;
+        }
+      }
     }
     if (!changed && precise) break;
     precise |= !changed;

@@ -79,10 +79,30 @@ struct CoupledStepReport {
 // the caller applies it to the rigid bodies (their own solver steps them,
 // with whatever else acts on them, which the prediction here leaves out
 // beyond `impulse`).
+//
+// A constraint of the rigid bodies' own solver on a tree, linearized about
+// its state at the step's start: its force is D (aref - J a), a the tree's
+// acceleration over the step (MuJoCo's constraint rows in their quadratic
+// state, D its efc_D, aref its efc_aref), so it adds D J^T J to the tree's
+// mass and dt J^T D aref to its impulse. A unilateral one (a contact's, a
+// joint limit's) only pushes: where a solution has it pull, it is released
+// (no force), as the rigid solver will find it released, and taken back
+// where it then pushes, as the rigid solver's active set does
+// (kMaxConstraintSwitches times at most). (Held, a joint limit under a lid struck from below held
+// the lid to it in the prediction, and the lid took the blow of a body that had stopped against it
+// as against a heavy one.)
+struct RigidConstraint {
+  Eigen::VectorXd jacobian;  // n: J, the constraint's rate from the tree's velocities
+  double mass = 0.0;         // D (> 0)
+  double reference = 0.0;    // aref
+  bool unilateral = false;
+  bool released = false;  // out: released by the step
+};
 struct RigidTree {
-  Eigen::MatrixXd mass;          // n x n (n: the tree's degrees of freedom), positive definite
-  Eigen::VectorXd velocity;      // n, at the step's start
-  Eigen::VectorXd impulse;       // n, dt x the other generalized forces (gravity, bias, springs)
+  Eigen::MatrixXd mass;      // n x n (n: the tree's degrees of freedom), positive definite
+  Eigen::VectorXd velocity;  // n, at the step's start
+  Eigen::VectorXd impulse;   // n, dt x the other generalized forces (gravity, bias, springs)
+  std::vector<RigidConstraint> constraints;
   Eigen::VectorXd velocity_end;  // out: n, at the step's end as the step predicts it
 };
 struct RigidPoint {
@@ -117,6 +137,9 @@ struct RigidSystem {
 // them on, they are only relaxed (released, or made to stick), each at
 // most twice.
 inline constexpr int kMaxContactRounds = 8;
+// How often a rigid tree's unilateral constraint may be released or taken
+// back in a step (RigidConstraint).
+inline constexpr int kMaxConstraintSwitches = 4;
 // The relative residual of the solves that only settle which contacts push.
 inline constexpr double kSettlingTolerance = 1e-3;
 // A sliding contact's friction is set again (and the step solved again)

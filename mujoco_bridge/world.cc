@@ -1044,14 +1044,13 @@ bool World::LinearizedConstraints() const {
 }
 
 // MuJoCo's force of a constraint row i in its quadratic state (an equality,
-// an active limit or contact, friction within its cone) is D_i (aref_i -
-// J_i a) (D_i: efc_D, aref_i: its reference acceleration, from the state at
-// the step's start), so with the active set fixed the tree's motion solves
-// (M + sum D_i J_i^T J_i) a = f + sum J_i^T D_i aref_i: the rows add D_i
-// J_i^T J_i to its mass and dt J_i^T D_i aref_i to its impulse, in place of
-// their solved force. The rows that are not quadratic (satisfied, friction
-// loss at its limit, an elliptic cone's edge) and those on several trees
-// keep the force MuJoCo solved for them with the last step's forces of ours.
+// an active limit or contact) is D_i (aref_i - J_i a) (D_i: efc_D, aref_i:
+// its reference acceleration, from the state at the step's start): the
+// step takes such a row on one tree as a RigidConstraint (coupled_step.h),
+// in place of its solved force, unilateral but for an equality. The other
+// rows (satisfied, an elliptic cone's, friction loss, on several trees)
+// keep the force MuJoCo solved for them with the last step's forces of
+// ours.
 void World::LinearizeConstraints(int root, int first, double dt, RigidTree& tree) {
   const mjModel* m = model_;
   const mjData* d = data_;
@@ -1059,7 +1058,10 @@ void World::LinearizeConstraints(int root, int first, double dt, RigidTree& tree
   const bool sparse = mj_isSparse(m) != 0;
   Eigen::VectorXd row(size);
   for (int i = 0; i < d->nefc; ++i) {
-    if (row_tree_[static_cast<size_t>(i)] != root || d->efc_state[i] != mjCNSTRSTATE_QUADRATIC) {
+    const int type = d->efc_type[i];
+    if (row_tree_[static_cast<size_t>(i)] != root || d->efc_state[i] != mjCNSTRSTATE_QUADRATIC ||
+        type == mjCNSTR_CONTACT_ELLIPTIC || type == mjCNSTR_FRICTION_DOF ||
+        type == mjCNSTR_FRICTION_TENDON) {
       continue;
     }
     row.setZero();
@@ -1072,8 +1074,12 @@ void World::LinearizeConstraints(int root, int first, double dt, RigidTree& tree
       row = Eigen::Map<const Eigen::VectorXd>(d->efc_J + static_cast<size_t>(i) * m->nv + first,
                                               size);
     }
-    tree.mass.noalias() += d->efc_D[i] * row * row.transpose();
-    tree.impulse += dt * (d->efc_D[i] * d->efc_aref[i] - d->efc_force[i]) * row;
+    tree.impulse -= dt * d->efc_force[i] * row;
+    RigidConstraint& constraint = tree.constraints.emplace_back();
+    constraint.jacobian = row;
+    constraint.mass = d->efc_D[i];
+    constraint.reference = d->efc_aref[i];
+    constraint.unilateral = type != mjCNSTR_EQUALITY;
   }
 }
 
