@@ -88,9 +88,9 @@ struct CoupledStepReport {
 // joint limit's) only pushes: where a solution has it pull, it is released
 // (no force), as the rigid solver will find it released, and taken back
 // where it then pushes, as the rigid solver's active set does
-// (kMaxConstraintSwitches times at most). (Held, a joint limit under a lid struck from below held
-// the lid to it in the prediction, and the lid took the blow of a body that had stopped against it
-// as against a heavy one.)
+// (kMaxConstraintSwitches times at most). (Held, a joint limit under a lid
+// struck from below held the lid to it in the prediction, and the lid took
+// the blow of a body that had stopped against it as against a heavy one.)
 struct RigidConstraint {
   Eigen::VectorXd jacobian;  // n: J, the constraint's rate from the tree's velocities
   double mass = 0.0;         // D (> 0)

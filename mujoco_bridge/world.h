@@ -246,9 +246,10 @@ class World {
   // the trees in contact and those carrying attachments' pins.
   void BuildRigidSystem(double dt);
   void FindOtherForces();  // other_forces_, once a step
+  // whether the step linearizes MuJoCo's constraints (<solver constraints>)
   bool LinearizedConstraints() const;
-  // MuJoCo's constraints on tree `root` (degrees of freedom first..first +
-  // size) linearized about their active set, into its block of the system
+  // MuJoCo's constraints on tree `root` (whose degrees of freedom start at
+  // `first`), linearized about their active set, as its RigidConstraints
   void LinearizeConstraints(int root, int first, double dt, RigidTree& tree);
   void AdvanceUnsolvedTrees(double dt);  // (substeps)
   void AddRigidForce(int body, const Eigen::Vector3d& point, const Eigen::Vector3d& force);
