@@ -1012,16 +1012,23 @@ void World::FindOtherForces() {
     // ours: their active set, and the forces of the rows not linearized
     mj_fwdAcceleration(m, d);
     mj_fwdConstraint(m, d);
-    row_tree_.assign(static_cast<size_t>(d->nefc), -2);
+    row_trees_.assign(static_cast<size_t>(d->nefc), {-1, -1});
     const bool sparse = mj_isSparse(m) != 0;
     for (int i = 0; i < d->nefc; ++i) {
-      int& tree = row_tree_[static_cast<size_t>(i)];
+      std::array<int, 2>& trees = row_trees_[static_cast<size_t>(i)];
       const int count = sparse ? d->efc_J_rownnz[i] : m->nv;
       for (int k = 0; k < count; ++k) {
         const int dof = sparse ? d->efc_J_colind[d->efc_J_rowadr[i] + k] : k;
         if (!sparse && d->efc_J[static_cast<size_t>(i) * m->nv + k] == 0.0) continue;
         const int root = m->body_rootid[m->dof_bodyid[dof]];
-        tree = tree == -2 || tree == root ? root : -1;
+        if (trees[0] < 0 || trees[0] == root) {
+          trees[0] = root;
+        } else if (trees[1] < 0 || trees[1] == root) {
+          trees[1] = root;
+        } else {
+          trees = {-2, -2};  // (three trees or more: not linearized)
+          break;
+        }
       }
     }
   }
@@ -1046,9 +1053,12 @@ bool World::LinearizedConstraints() const {
 // MuJoCo's force of a constraint row i in its quadratic state (an equality,
 // an active limit or contact) is D_i (aref_i - J_i a) (D_i: efc_D, aref_i:
 // its reference acceleration, from the state at the step's start): the
-// step takes such a row on one tree as a RigidConstraint (coupled_step.h),
-// in place of its solved force, unilateral but for an equality. The other
-// rows (satisfied, an elliptic cone's, friction loss, on several trees)
+// step takes such a row on the tree as a RigidConstraint (coupled_step.h),
+// in place of its solved force, unilateral but for an equality. A row
+// between this tree and one the step does not solve (a box resting on
+// another) is taken with that one held still: J_i on this tree's degrees
+// of freedom alone. The other rows (satisfied, an elliptic cone's,
+// friction loss, between two trees the step solves, on three or more)
 // keep the force MuJoCo solved for them with the last step's forces of
 // ours.
 void World::LinearizeConstraints(int root, int first, double dt, RigidTree& tree) {
@@ -1059,16 +1069,19 @@ void World::LinearizeConstraints(int root, int first, double dt, RigidTree& tree
   Eigen::VectorXd row(size);
   for (int i = 0; i < d->nefc; ++i) {
     const int type = d->efc_type[i];
-    if (row_tree_[static_cast<size_t>(i)] != root || d->efc_state[i] != mjCNSTRSTATE_QUADRATIC ||
-        type == mjCNSTR_CONTACT_ELLIPTIC || type == mjCNSTR_FRICTION_DOF ||
-        type == mjCNSTR_FRICTION_TENDON) {
+    const std::array<int, 2>& trees = row_trees_[static_cast<size_t>(i)];
+    const int other = trees[0] == root ? trees[1] : trees[0];
+    if ((trees[0] != root && trees[1] != root) || (other >= 0 && tree_slot_[other] >= 0) ||
+        d->efc_state[i] != mjCNSTRSTATE_QUADRATIC || type == mjCNSTR_CONTACT_ELLIPTIC ||
+        type == mjCNSTR_FRICTION_DOF || type == mjCNSTR_FRICTION_TENDON) {
       continue;
     }
     row.setZero();
     if (sparse) {
       for (int k = 0; k < d->efc_J_rownnz[i]; ++k) {
         const int address = d->efc_J_rowadr[i] + k;
-        row[d->efc_J_colind[address] - first] = d->efc_J[address];
+        const int dof = d->efc_J_colind[address];
+        if (dof >= first && dof < first + size) row[dof - first] = d->efc_J[address];
       }
     } else {
       row = Eigen::Map<const Eigen::VectorXd>(d->efc_J + static_cast<size_t>(i) * m->nv + first,
@@ -1146,7 +1159,6 @@ void World::BuildRigidSystem(double dt) {
       }
       tree.velocity = Eigen::Map<const Eigen::VectorXd>(substep_velocity_.data() + first, size);
       tree.impulse = dt * Eigen::Map<const Eigen::VectorXd>(other_forces_.data() + first, size);
-      if (LinearizedConstraints()) LinearizeConstraints(root, first, dt, tree);
     }
     jacobian_.resize(3 * static_cast<size_t>(m->nv));
     mj_jac(m, d, jacobian_.data(), nullptr, p_W.data(), body);
@@ -1186,6 +1198,13 @@ void World::BuildRigidSystem(double dt) {
       add_point(body, reaction_points_[point++]);
       rigid_.pins.push_back(
           {static_cast<int>(i), static_cast<int>(k), static_cast<int>(rigid_.points.size()) - 1});
+    }
+  }
+  // (once every tree is in: a constraint to a tree not solved holds it still)
+  if (LinearizedConstraints()) {
+    for (size_t t = 0; t < rigid_.trees.size(); ++t) {
+      const int root = rigid_roots_[t];
+      LinearizeConstraints(root, tree_first_dof_[root], dt, rigid_.trees[t]);
     }
   }
 }

@@ -250,6 +250,7 @@ class World {
   bool LinearizedConstraints() const;
   // MuJoCo's constraints on tree `root` (whose degrees of freedom start at
   // `first`), linearized about their active set, as its RigidConstraints
+  // (once every tree of the system is in: tree_slot_ tells which are)
   void LinearizeConstraints(int root, int first, double dt, RigidTree& tree);
   void AdvanceUnsolvedTrees(double dt);  // (substeps)
   void AddRigidForce(int body, const Eigen::Vector3d& point, const Eigen::Vector3d& force);
@@ -330,9 +331,9 @@ class World {
   RigidSystem rigid_;
   std::vector<double> jacobian_;      // 3 x nv, row-major
   std::vector<double> other_forces_;  // nv
-  // each MuJoCo constraint row's tree (its root body), -1 for a row on
-  // several trees (FindOtherForces, with the rows linearized)
-  std::vector<int> row_tree_;
+  // each MuJoCo constraint row's trees (their root bodies; -1: none, -2:
+  // three or more; FindOtherForces, with the rows linearized)
+  std::vector<std::array<int, 2>> row_trees_;
   // nv: the generalized velocities a substep's trees start at: MuJoCo's at
   // the step's start, each tree's as the last substep that solved it
   // predicted (MuJoCo steps once, after the substeps: its velocities stay
