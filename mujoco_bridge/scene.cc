@@ -87,13 +87,20 @@ class SceneParser {
     return value;
   }
 
-  bool Bool(const XMLElement* element, const char* name, bool fallback) const {
+  // An attribute that is one of two words: whether it is `first`
+  // (`fallback` where it is absent).
+  bool Either(const XMLElement* element, const char* name, const char* first, const char* second,
+              bool fallback) const {
     const char* text = element->Attribute(name);
     if (!text) return fallback;
-    std::string value(text);
-    if (value == "true") return true;
-    if (value == "false") return false;
-    Fail(element, std::string(name) + " must be true or false");
+    const std::string_view value(text);
+    if (value == first) return true;
+    if (value == second) return false;
+    Fail(element, std::string(name) + " must be " + first + " or " + second);
+  }
+
+  bool Bool(const XMLElement* element, const char* name, bool fallback) const {
+    return Either(element, name, "true", "false", fallback);
   }
 
   std::string File(const XMLElement* element, const char* name) const {
@@ -206,16 +213,10 @@ class SceneParser {
         } else if (kind == "contact") {
           CheckAttributes(child, {"method", "stiffness", "damping", "friction", "slip", "stick",
                                   "stickstiffness", "autoproxy"});
-          if (const char* method = child->Attribute("method")) {
-            std::string m(method);
-            if (m == "consistent") {
-              scene.method = DepthMethod::kConsistent;
-            } else if (m == "closest") {
-              scene.method = DepthMethod::kClosest;
-            } else {
-              Fail(child, "method must be consistent or closest");
-            }
-          }
+          scene.method = Either(child, "method", "consistent", "closest",
+                                scene.method == DepthMethod::kConsistent)
+                             ? DepthMethod::kConsistent
+                             : DepthMethod::kClosest;
           ContactAttributes(child, scene.contact);
           // (0 would divide by zero in the friction damping, mu f_n / v_s, of
           // a sticking contact; 1 um/s is the smallest tried: the slope of
@@ -231,30 +232,15 @@ class SceneParser {
           CheckAttributes(child,
                           {"substeps", "linear", "tolerance", "maxiter", "rigid", "constraints"});
           scene.solver.substeps = static_cast<int>(Number(child, "substeps", 1, 1000).value_or(1));
-          if (const char* rigid = child->Attribute("rigid")) {
-            const std::string r(rigid);
-            if (r != "implicit" && r != "explicit") {
-              Fail(child, "rigid must be implicit or explicit");
-            }
-            scene.solver.implicit_rigid = r == "implicit";
-          }
-          if (const char* constraints = child->Attribute("constraints")) {
-            const std::string c(constraints);
-            if (c != "linearized" && c != "lagged") {
-              Fail(child, "constraints must be linearized or lagged");
-            }
-            scene.solver.linearize_constraints = c == "linearized";
-          }
-          if (const char* linear = child->Attribute("linear")) {
-            std::string l(linear);
-            if (l == "cg") {
-              scene.solver.linear_solver = LinearSolver::kConjugateGradient;
-            } else if (l == "ldlt") {
-              scene.solver.linear_solver = LinearSolver::kCholesky;
-            } else {
-              Fail(child, "linear must be cg or ldlt");
-            }
-          }
+          scene.solver.implicit_rigid =
+              Either(child, "rigid", "implicit", "explicit", scene.solver.implicit_rigid);
+          scene.solver.linearize_constraints = Either(child, "constraints", "linearized", "lagged",
+                                                      scene.solver.linearize_constraints);
+          scene.solver.linear_solver =
+              Either(child, "linear", "cg", "ldlt",
+                     scene.solver.linear_solver == LinearSolver::kConjugateGradient)
+                  ? LinearSolver::kConjugateGradient
+                  : LinearSolver::kCholesky;
           scene.solver.tolerance = Number(child, "tolerance", 1e-14, 1e-1).value_or(1e-6);
           scene.solver.max_iterations =
               static_cast<int>(Number(child, "maxiter", 1, 1e6).value_or(1000));

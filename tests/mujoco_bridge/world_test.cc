@@ -96,6 +96,7 @@ TEST(SceneLoading, BadScenesNameTheLine) {
       {"<contact method=\"nearest\"/>\n",
        "scene.xml:6: <contact>: method must be consistent or closest"},
       {"<solver rigid=\"semi\"/>\n", "scene.xml:6: <solver>: rigid must be implicit or explicit"},
+      {"<solver linear=\"lu\"/>\n", "scene.xml:6: <solver>: linear must be cg or ldlt"},
       {"<solver constraints=\"exact\"/>\n",
        "scene.xml:6: <solver>: constraints must be linearized or lagged"},
       {"<tetbody name=\"a\" shape=\"sphere\" size=\"0.1\"/>\n<attach tetbody=\"zz\" body=\"b\" "
@@ -896,6 +897,32 @@ TEST(WorldStep, ARigidResetWithSubstepsLeavesTheBodiesWhereMuJoCoPutThem) {
 // the element that goes over, before any mesh is built (else the kernel
 // kills the process while it builds them). cube_on_box's deformable has 384
 // tetrahedra (about 0.6 MB) and its rigid proxy 384 (about 0.23 MB).
+// The two-word keywords of <contact> and <solver>: each word read as
+// itself, and the defaults where they are absent.
+TEST(WorldLoad, KeywordAttributesAreRead) {
+  TempDir dir;
+  auto parse = [&](const std::string& deformable) {
+    return ParseScene(dir.Write("keywords.xml", "<mujoco>\n  <deformable>\n" + deformable +
+                                                    "  </deformable>\n</mujoco>\n"));
+  };
+  // every attribute its first word (the default), or every one its second
+  auto expect = [](const SceneSpec& spec, bool first) {
+    EXPECT_EQ(spec.method, first ? DepthMethod::kConsistent : DepthMethod::kClosest);
+    EXPECT_EQ(spec.stick, first);
+    EXPECT_EQ(spec.solver.implicit_rigid, first);
+    EXPECT_EQ(spec.solver.linearize_constraints, first);
+    EXPECT_EQ(spec.solver.linear_solver,
+              first ? LinearSolver::kConjugateGradient : LinearSolver::kCholesky);
+  };
+  expect(parse(""), true);
+  expect(parse("<contact method=\"closest\" stick=\"false\"/>\n"
+               "<solver rigid=\"explicit\" constraints=\"lagged\" linear=\"ldlt\"/>\n"),
+         false);
+  expect(parse("<contact method=\"consistent\" stick=\"true\"/>\n"
+               "<solver rigid=\"implicit\" constraints=\"linearized\" linear=\"cg\"/>\n"),
+         true);
+}
+
 TEST(WorldLoad, MemoryBeyondTheLimitIsAClearError) {
   const std::string path = std::string(TETCOSIM_SOURCE_DIR) + "/models/scenes/cube_on_box.xml";
   for (const auto& [limit, message] :
