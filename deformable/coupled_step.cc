@@ -169,11 +169,12 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   std::vector<char> pinned(n, 0);
   Eigen::VectorXd delta = Eigen::VectorXd::Zero(n);
   // a rigid tree: M q+ = M q + impulse + its contacts' and constraints' share
-  std::vector<std::vector<int>> constraint_switches(num_trees);
   for (int t = 0; t < num_trees; ++t) {
     RigidTree& tree = rigid->trees[t];
-    for (RigidConstraint& constraint : tree.constraints) constraint.released = false;
-    constraint_switches[static_cast<size_t>(t)].assign(tree.constraints.size(), 0);
+    for (RigidConstraint& constraint : tree.constraints) {
+      constraint.released = false;
+      constraint.switches = 0;
+    }
     const Eigen::Index size = tree.velocity.size();
     v.segment(tree_offset[t], size) = tree.velocity;
     b.segment(tree_offset[t], size) = tree.mass * tree.velocity + tree.impulse;
@@ -673,16 +674,14 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     for (int t = 0; t < num_trees; ++t) {
       RigidTree& tree = rigid->trees[t];
       const auto v_tree = v_new.segment(tree_offset[t], tree.velocity.size());
-      for (size_t i = 0; i < tree.constraints.size(); ++i) {
-        RigidConstraint& constraint = tree.constraints[i];
+      for (RigidConstraint& constraint : tree.constraints) {
         if (!constraint.unilateral) continue;
         // (dt times its force over D)
         const bool pushes =
             constraint.jacobian.dot(tree.velocity - v_tree) + dt * constraint.reference >= 0.0;
-        int& switched = constraint_switches[static_cast<size_t>(t)][i];
-        if (pushes == constraint.released && switched < kMaxConstraintSwitches) {
+        if (pushes == constraint.released && constraint.switches < kMaxConstraintSwitches) {
           constraint.released = !pushes;
-          ++switched;
+          ++constraint.switches;
           changed = true;
         }
       }

@@ -97,6 +97,7 @@ struct RigidConstraint {
   double reference = 0.0;    // aref
   bool unilateral = false;
   bool released = false;  // out: released by the step
+  int switches = 0;       // out: how often the step released it or took it back
 };
 struct RigidTree {
   Eigen::MatrixXd mass;      // n x n (n: the tree's degrees of freedom), positive definite

@@ -1053,30 +1053,34 @@ bool World::LinearizedConstraints() const {
 // MuJoCo's force of a constraint row i in its quadratic state (an equality,
 // an active limit or contact) is D_i (aref_i - J_i a) (D_i: efc_D, aref_i:
 // its reference acceleration, from the state at the step's start): the
-// step takes such a row on the tree as a RigidConstraint (coupled_step.h),
-// in place of its solved force, unilateral but for an equality. A row
-// between this tree and one the step does not solve (a box resting on
-// another) is taken with that one held still: J_i on this tree's degrees
-// of freedom alone. The other rows (satisfied, an elliptic cone's,
-// friction loss, between two trees the step solves, on three or more)
-// keep the force MuJoCo solved for them with the last step's forces of
-// ours.
-void World::LinearizeConstraints(int root, int first, double dt, RigidTree& tree) {
+// step takes such a row on a tree it solves as a RigidConstraint of that
+// tree (coupled_step.h), in place of its solved force, unilateral but for
+// an equality. A row between that tree and one the step does not solve (a
+// box resting on another) is taken with that one held still: J_i on the
+// solved tree's degrees of freedom alone. The other rows (satisfied, an
+// elliptic cone's, friction loss, between two trees the step solves, on
+// three or more) keep the force MuJoCo solved for them with the last
+// step's forces of ours.
+void World::LinearizeConstraints(double dt) {
   const mjModel* m = model_;
   const mjData* d = data_;
-  const int size = static_cast<int>(tree.velocity.size());
   const bool sparse = mj_isSparse(m) != 0;
-  Eigen::VectorXd row(size);
+  Eigen::VectorXd row;
   for (int i = 0; i < d->nefc; ++i) {
     const int type = d->efc_type[i];
-    const std::array<int, 2>& trees = row_trees_[static_cast<size_t>(i)];
-    const int other = trees[0] == root ? trees[1] : trees[0];
-    if ((trees[0] != root && trees[1] != root) || (other >= 0 && tree_slot_[other] >= 0) ||
-        d->efc_state[i] != mjCNSTRSTATE_QUADRATIC || type == mjCNSTR_CONTACT_ELLIPTIC ||
+    if (d->efc_state[i] != mjCNSTRSTATE_QUADRATIC || type == mjCNSTR_CONTACT_ELLIPTIC ||
         type == mjCNSTR_FRICTION_DOF || type == mjCNSTR_FRICTION_TENDON) {
       continue;
     }
-    row.setZero();
+    // the one tree of the row that the step solves (not neither, not both)
+    const std::array<int, 2>& trees = row_trees_[static_cast<size_t>(i)];
+    auto solved = [&](int root) { return root >= 0 && tree_slot_[root] >= 0; };
+    if (solved(trees[0]) == solved(trees[1])) continue;
+    const int root = solved(trees[0]) ? trees[0] : trees[1];
+    RigidTree& tree = rigid_.trees[static_cast<size_t>(tree_slot_[root])];
+    const int first = tree_first_dof_[root];
+    const int size = static_cast<int>(tree.velocity.size());
+    row.setZero(size);
     if (sparse) {
       for (int k = 0; k < d->efc_J_rownnz[i]; ++k) {
         const int address = d->efc_J_rowadr[i] + k;
@@ -1200,13 +1204,9 @@ void World::BuildRigidSystem(double dt) {
           {static_cast<int>(i), static_cast<int>(k), static_cast<int>(rigid_.points.size()) - 1});
     }
   }
-  // (once every tree is in: a constraint to a tree not solved holds it still)
-  if (LinearizedConstraints()) {
-    for (size_t t = 0; t < rigid_.trees.size(); ++t) {
-      const int root = rigid_roots_[t];
-      LinearizeConstraints(root, tree_first_dof_[root], dt, rigid_.trees[t]);
-    }
-  }
+  // (once every tree is in, each added after FindOtherForces: a constraint
+  // to a tree not solved holds it still)
+  if (LinearizedConstraints() && !rigid_.trees.empty()) LinearizeConstraints(dt);
 }
 
 std::vector<World::GeomSummary> World::GeomsMetByShape() const {

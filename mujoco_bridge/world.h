@@ -248,10 +248,10 @@ class World {
   void FindOtherForces();  // other_forces_, once a step
   // whether the step linearizes MuJoCo's constraints (<solver constraints>)
   bool LinearizedConstraints() const;
-  // MuJoCo's constraints on tree `root` (whose degrees of freedom start at
-  // `first`), linearized about their active set, as its RigidConstraints
-  // (once every tree of the system is in: tree_slot_ tells which are)
-  void LinearizeConstraints(int root, int first, double dt, RigidTree& tree);
+  // MuJoCo's constraints on the trees of the rigid system, linearized about
+  // their active set, as their RigidConstraints (once every tree of the
+  // system is in: tree_slot_ tells which are)
+  void LinearizeConstraints(double dt);
   void AdvanceUnsolvedTrees(double dt);  // (substeps)
   void AddRigidForce(int body, const Eigen::Vector3d& point, const Eigen::Vector3d& force);
   // The MuJoCo body that pin `pin` of deformable `deformable` follows, or
