@@ -143,6 +143,32 @@ bool InsideFrictionCone(const Eigen::Vector3d& force, const ContactPoint& contac
   return Tangential(force, contact.direction).norm() <= FrictionLimit(force, contact);
 }
 
+// Whether a unilateral RigidConstraint pushes at a solution that changes
+// its tree's velocities by -`change` over dt: -dt r = J change + dt aref
+// (r: its rows' J a - aref, a = -change / dt); a row pushes where r <= 0,
+// an elliptic cone contact unless r is in the cone's top zone.
+bool ConstraintPushes(const RigidConstraint& constraint, const Eigen::VectorXd& change, double dt) {
+  if (constraint.kind == RigidConstraint::Kind::kUnilateral) {
+    return constraint.jacobian.row(0).dot(change) + dt * constraint.reference[0] >= 0.0;
+  }
+  // N and T of dt r scaled into the cone's space (the zones are cones: the
+  // scale dt leaves them as they are)
+  double normal = 0.0, tangential = 0.0;
+  for (Eigen::Index row = 0; row < constraint.jacobian.rows(); ++row) {
+    const double u = -constraint.cone[row] *
+                     (constraint.jacobian.row(row).dot(change) + dt * constraint.reference[row]);
+    if (row == 0) {
+      normal = u;
+    } else {
+      tangential += u * u;
+    }
+  }
+  tangential = std::sqrt(tangential);
+  const double mu = constraint.cone[0];
+  const bool top = normal >= mu * tangential || (tangential <= 0.0 && normal >= 0.0);
+  return !top;
+}
+
 }  // namespace
 
 CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
@@ -342,9 +368,11 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
       y.segment(tree_offset[t], size).noalias() = tree.mass * x.segment(tree_offset[t], size);
       for (const RigidConstraint& constraint : tree.constraints) {
         if (constraint.released) continue;
-        y.segment(tree_offset[t], size) +=
-            constraint.mass * constraint.jacobian.dot(x.segment(tree_offset[t], size)) *
-            constraint.jacobian;
+        for (Eigen::Index i = 0; i < constraint.jacobian.rows(); ++i) {
+          const auto row = constraint.jacobian.row(i);
+          y.segment(tree_offset[t], size) +=
+              constraint.mass[i] * row.dot(x.segment(tree_offset[t], size)) * row.transpose();
+        }
       }
     }
     for (const Coupling& coupling : couplings) {
@@ -469,14 +497,16 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     for (int t = 0; t < num_trees; ++t) {
       const RigidTree& tree = rigid->trees[t];
       tree_diagonal[t] = tree.mass;
-      // its constraints: D J^T J, and D J^T (J v + dt aref) into b
+      // its constraints, row by row: D J^T J, and D J^T (J v + dt aref) into b
       for (const RigidConstraint& constraint : tree.constraints) {
         if (constraint.released) continue;
-        tree_diagonal[t].noalias() +=
-            constraint.mass * constraint.jacobian * constraint.jacobian.transpose();
-        b.segment(tree_offset[t], tree.mass.rows()) +=
-            constraint.mass * (constraint.jacobian.dot(tree.velocity) + dt * constraint.reference) *
-            constraint.jacobian;
+        for (Eigen::Index i = 0; i < constraint.jacobian.rows(); ++i) {
+          const auto row = constraint.jacobian.row(i);
+          tree_diagonal[t].noalias() += constraint.mass[i] * row.transpose() * row;
+          b.segment(tree_offset[t], tree.mass.rows()) +=
+              constraint.mass[i] * (row.dot(tree.velocity) + dt * constraint.reference[i]) *
+              row.transpose();
+        }
       }
     }
     rigid_couplings.clear();
@@ -675,10 +705,8 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
       RigidTree& tree = rigid->trees[t];
       const auto v_tree = v_new.segment(tree_offset[t], tree.velocity.size());
       for (RigidConstraint& constraint : tree.constraints) {
-        if (!constraint.unilateral) continue;
-        // (dt times its force over D)
-        const bool pushes =
-            constraint.jacobian.dot(tree.velocity - v_tree) + dt * constraint.reference >= 0.0;
+        if (constraint.kind == RigidConstraint::Kind::kEquality) continue;
+        const bool pushes = ConstraintPushes(constraint, tree.velocity - v_tree, dt);
         if (pushes == constraint.released && constraint.switches < kMaxConstraintSwitches) {
           constraint.released = !pushes;
           ++constraint.switches;

@@ -81,24 +81,40 @@ struct CoupledStepReport {
 // beyond `impulse`).
 //
 // A constraint of the rigid bodies' own solver on a tree, linearized about
-// its state at the step's start: its force is D (aref - J a), a the tree's
-// acceleration over the step (MuJoCo's constraint rows in their quadratic
-// state, D its efc_D, aref its efc_aref), so it adds D J^T J to the tree's
-// mass and dt J^T D aref to its impulse. A unilateral one (a contact's, a
-// joint limit's) only pushes: where a solution has it pull, it is released
-// (no force), as the rigid solver will find it released, and taken back
-// where it then pushes, as the rigid solver's active set does
-// (kMaxConstraintSwitches times at most). (Held, a joint limit under a lid
-// struck from below held the lid to it in the prediction, and the lid took
-// the blow of a body that had stopped against it as against a heavy one.)
+// its state at the step's start: the force of each of its rows is
+// D (aref - J a), a the tree's acceleration over the step (MuJoCo's
+// constraint rows in their quadratic state, D their efc_D, aref their
+// efc_aref), so it adds J^T D J to the tree's mass and dt J^T D aref to its
+// impulse. A unilateral one (a contact's, a joint limit's) only pushes:
+// where a solution has it pull, it is released (no force), as the rigid
+// solver will find it released, and taken back where it then pushes, as
+// the rigid solver's active set does (kMaxConstraintSwitches times at
+// most). (Held, a joint limit under a lid struck from below held the lid to
+// it in the prediction, and the lid took the blow of a body that had
+// stopped against it as against a heavy one.) A contact in an elliptic
+// friction cone is one constraint of its normal row and its friction rows,
+// released and taken back as one: released where a solution puts it in
+// the cone's top zone (no force: N >= mu T, with N = mu r_0 and T the norm
+// of the friction rows' r_j scaled by their coefficients, r the rows'
+// J a - aref), held otherwise. In the cone's middle zone (sliding, with
+// its force on the cone's surface) it is held as in the bottom zone
+// (sticking): a step whose contacts start sticking predicts them sticking.
 struct RigidConstraint {
-  Eigen::VectorXd jacobian;  // n: J, the constraint's rate from the tree's velocities
-  double mass = 0.0;         // D (> 0)
-  double reference = 0.0;    // aref
-  bool unilateral = false;
+  enum class Kind { kEquality, kUnilateral, kEllipticCone };
+  // rows x n: J, the rates of its rows from the tree's velocities (one row,
+  // or an elliptic cone contact's normal row then its 1 to 5 friction rows)
+  Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> jacobian;
+  Eigen::VectorXd mass;       // per row: D (> 0)
+  Eigen::VectorXd reference;  // per row: aref
+  Kind kind = Kind::kEquality;
+  // kEllipticCone: per row, the scale into the cone's space: mu for the
+  // normal row, then each friction row's coefficient
+  Eigen::VectorXd cone;
   bool released = false;  // out: released by the step
   int switches = 0;       // out: how often the step released it or took it back
 };
+// The most rows a RigidConstraint has (an elliptic cone contact's, condim 6)
+inline constexpr int kMaxConstraintRows = 6;
 struct RigidTree {
   Eigen::MatrixXd mass;      // n x n (n: the tree's degrees of freedom), positive definite
   Eigen::VectorXd velocity;  // n, at the step's start

@@ -1014,20 +1014,23 @@ void World::FindOtherForces() {
     mj_fwdConstraint(m, d);
     row_trees_.assign(static_cast<size_t>(d->nefc), {-1, -1});
     const bool sparse = mj_isSparse(m) != 0;
-    for (int i = 0; i < d->nefc; ++i) {
-      std::array<int, 2>& trees = row_trees_[static_cast<size_t>(i)];
-      const int count = sparse ? d->efc_J_rownnz[i] : m->nv;
-      for (int k = 0; k < count; ++k) {
-        const int dof = sparse ? d->efc_J_colind[d->efc_J_rowadr[i] + k] : k;
-        if (!sparse && d->efc_J[static_cast<size_t>(i) * m->nv + k] == 0.0) continue;
-        const int root = m->body_rootid[m->dof_bodyid[dof]];
-        if (trees[0] < 0 || trees[0] == root) {
-          trees[0] = root;
-        } else if (trees[1] < 0 || trees[1] == root) {
-          trees[1] = root;
-        } else {
-          trees = {-2, -2};  // (three trees or more: not linearized)
-          break;
+    for (int first = 0, rows = 1; first < d->nefc; first += rows) {
+      rows = ConstraintRows(first);
+      std::array<int, 2>& trees = row_trees_[static_cast<size_t>(first)];
+      for (int i = first; i < first + rows && trees[0] != -2; ++i) {
+        const int count = sparse ? d->efc_J_rownnz[i] : m->nv;
+        for (int k = 0; k < count; ++k) {
+          const int dof = sparse ? d->efc_J_colind[d->efc_J_rowadr[i] + k] : k;
+          if (!sparse && d->efc_J[static_cast<size_t>(i) * m->nv + k] == 0.0) continue;
+          const int root = m->body_rootid[m->dof_bodyid[dof]];
+          if (trees[0] < 0 || trees[0] == root) {
+            trees[0] = root;
+          } else if (trees[1] < 0 || trees[1] == root) {
+            trees[1] = root;
+          } else {
+            trees = {-2, -2};  // (three trees or more: not linearized)
+            break;
+          }
         }
       }
     }
@@ -1050,53 +1053,72 @@ bool World::LinearizedConstraints() const {
          model_->opt.solver != mjSOL_PGS;
 }
 
+int World::ConstraintRows(int row) const {
+  return data_->efc_type[row] == mjCNSTR_CONTACT_ELLIPTIC ? data_->contact[data_->efc_id[row]].dim
+                                                          : 1;
+}
+
 // MuJoCo's force of a constraint row i in its quadratic state (an equality,
-// an active limit or contact) is D_i (aref_i - J_i a) (D_i: efc_D, aref_i:
-// its reference acceleration, from the state at the step's start): the
-// step takes such a row on a tree it solves as a RigidConstraint of that
-// tree (coupled_step.h), in place of its solved force, unilateral but for
-// an equality. A row between that tree and one the step does not solve (a
-// box resting on another) is taken with that one held still: J_i on the
+// an active limit or contact, an elliptic cone contact's rows in its bottom
+// zone) is D_i (aref_i - J_i a) (D_i: efc_D, aref_i: its reference
+// acceleration, from the state at the step's start): the step takes such a
+// constraint on a tree it solves as a RigidConstraint of that tree
+// (coupled_step.h), in place of its solved force, unilateral but for an
+// equality. A constraint between that tree and one the step does not solve
+// (a box resting on another) is taken with that one held still: J on the
 // solved tree's degrees of freedom alone. The other rows (satisfied, an
-// elliptic cone's, friction loss, between two trees the step solves, on
-// three or more) keep the force MuJoCo solved for them with the last
-// step's forces of ours.
+// elliptic cone contact in its middle zone, friction loss, between two
+// trees the step solves, on three or more) keep the force MuJoCo solved for
+// them with the last step's forces of ours.
 void World::LinearizeConstraints(double dt) {
   const mjModel* m = model_;
   const mjData* d = data_;
   const bool sparse = mj_isSparse(m) != 0;
-  Eigen::VectorXd row;
-  for (int i = 0; i < d->nefc; ++i) {
-    const int type = d->efc_type[i];
-    if (d->efc_state[i] != mjCNSTRSTATE_QUADRATIC || type == mjCNSTR_CONTACT_ELLIPTIC ||
-        type == mjCNSTR_FRICTION_DOF || type == mjCNSTR_FRICTION_TENDON) {
+  for (int first = 0, rows = 1; first < d->nefc; first += rows) {
+    rows = ConstraintRows(first);
+    const int type = d->efc_type[first];
+    if (d->efc_state[first] != mjCNSTRSTATE_QUADRATIC || type == mjCNSTR_FRICTION_DOF ||
+        type == mjCNSTR_FRICTION_TENDON) {
       continue;
     }
-    // the one tree of the row that the step solves (not neither, not both)
-    const std::array<int, 2>& trees = row_trees_[static_cast<size_t>(i)];
+    // the one tree of the constraint that the step solves (not neither, not both)
+    const std::array<int, 2>& trees = row_trees_[static_cast<size_t>(first)];
     auto solved = [&](int root) { return root >= 0 && tree_slot_[root] >= 0; };
     if (solved(trees[0]) == solved(trees[1])) continue;
     const int root = solved(trees[0]) ? trees[0] : trees[1];
     RigidTree& tree = rigid_.trees[static_cast<size_t>(tree_slot_[root])];
-    const int first = tree_first_dof_[root];
+    const int first_dof = tree_first_dof_[root];
     const int size = static_cast<int>(tree.velocity.size());
-    row.setZero(size);
-    if (sparse) {
-      for (int k = 0; k < d->efc_J_rownnz[i]; ++k) {
-        const int address = d->efc_J_rowadr[i] + k;
-        const int dof = d->efc_J_colind[address];
-        if (dof >= first && dof < first + size) row[dof - first] = d->efc_J[address];
-      }
-    } else {
-      row = Eigen::Map<const Eigen::VectorXd>(d->efc_J + static_cast<size_t>(i) * m->nv + first,
-                                              size);
-    }
-    tree.impulse -= dt * d->efc_force[i] * row;
     RigidConstraint& constraint = tree.constraints.emplace_back();
-    constraint.jacobian = row;
-    constraint.mass = d->efc_D[i];
-    constraint.reference = d->efc_aref[i];
-    constraint.unilateral = type != mjCNSTR_EQUALITY;
+    constraint.jacobian.setZero(rows, size);
+    for (int r = 0; r < rows; ++r) {
+      const int i = first + r;
+      if (sparse) {
+        for (int k = 0; k < d->efc_J_rownnz[i]; ++k) {
+          const int address = d->efc_J_rowadr[i] + k;
+          const int dof = d->efc_J_colind[address];
+          if (dof >= first_dof && dof < first_dof + size) {
+            constraint.jacobian(r, dof - first_dof) = d->efc_J[address];
+          }
+        }
+      } else {
+        constraint.jacobian.row(r) = Eigen::Map<const Eigen::RowVectorXd>(
+            d->efc_J + static_cast<size_t>(i) * m->nv + first_dof, size);
+      }
+      tree.impulse -= dt * d->efc_force[i] * constraint.jacobian.row(r).transpose();
+    }
+    constraint.mass = Eigen::Map<const Eigen::VectorXd>(d->efc_D + first, rows);
+    constraint.reference = Eigen::Map<const Eigen::VectorXd>(d->efc_aref + first, rows);
+    if (type == mjCNSTR_EQUALITY) {
+      constraint.kind = RigidConstraint::Kind::kEquality;
+    } else if (type == mjCNSTR_CONTACT_ELLIPTIC) {
+      constraint.kind = RigidConstraint::Kind::kEllipticCone;
+      const mjContact& contact = d->contact[d->efc_id[first]];
+      constraint.cone = Eigen::VectorXd::NullaryExpr(
+          rows, [&](Eigen::Index r) { return r == 0 ? contact.mu : contact.friction[r - 1]; });
+    } else {
+      constraint.kind = RigidConstraint::Kind::kUnilateral;
+    }
   }
 }
 

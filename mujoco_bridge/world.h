@@ -252,6 +252,9 @@ class World {
   // their active set, as their RigidConstraints (once every tree of the
   // system is in: tree_slot_ tells which are)
   void LinearizeConstraints(double dt);
+  // the rows of the constraint whose first row is `row`: an elliptic cone
+  // contact's dim, else 1
+  int ConstraintRows(int row) const;
   void AdvanceUnsolvedTrees(double dt);  // (substeps)
   void AddRigidForce(int body, const Eigen::Vector3d& point, const Eigen::Vector3d& force);
   // The MuJoCo body that pin `pin` of deformable `deformable` follows, or
@@ -331,8 +334,9 @@ class World {
   RigidSystem rigid_;
   std::vector<double> jacobian_;      // 3 x nv, row-major
   std::vector<double> other_forces_;  // nv
-  // each MuJoCo constraint row's trees (their root bodies; -1: none, -2:
-  // three or more; FindOtherForces, with the rows linearized)
+  // each MuJoCo constraint's trees (their root bodies; -1: none, -2: three
+  // or more), at its first row (ConstraintRows; FindOtherForces, with the
+  // rows linearized)
   std::vector<std::array<int, 2>> row_trees_;
   // nv: the generalized velocities a substep's trees start at: MuJoCo's at
   // the step's start, each tree's as the last substep that solved it

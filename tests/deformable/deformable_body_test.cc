@@ -9,6 +9,7 @@
 #include <memory>
 #include <numbers>
 #include <span>
+#include <string>
 #include <vector>
 
 #include "collision/penetration.h"
@@ -343,6 +344,107 @@ TEST(DeformableBody, RigidSideSolvedWithTheStepTakesTheOppositeImpulse) {
   ASSERT_EQ(heavy.size(), kept.size());
   for (size_t c = 0; c < heavy.size(); ++c) {
     EXPECT_LT((heavy[c].force - kept[c].force).norm(), 1e-8 * kept[c].force.norm()) << c;
+  }
+}
+
+// A rigid solver's constraint taken into the step (RigidConstraint) on a
+// point of mass m (a tree of its three velocities), beside a cube it does
+// not touch. Held, each row k adds Newton's law with its force
+// D_k (aref_k - a_k): (m + D_k) v+_k = m v_k + p_k + D_k (v_k + dt aref_k);
+// released, v+ = v + p / m. A unilateral row is released exactly where its
+// held solution would pull (a_k - aref_k > 0); an elliptic cone contact
+// (rows z, x, y) exactly where its held solution is in the cone's top zone
+// (N >= mu T, MuJoCo's zones): pressed down and pushed within the cone, it
+// holds; struck up, it lets go; pushed sideways hard while lifted a little
+// (the cone's middle zone, where MuJoCo's force is on the cone's surface
+// and still pushes) it holds, where its normal row alone would let go.
+TEST(RigidConstraint, IsReleasedExactlyWhereItsForceWouldPull) {
+  auto model = Model("box:size=0.05:res=2");
+  StepSettings settings;
+  settings.gravity.setZero();
+  settings.cg_tolerance = 1e-12;
+  const double dt = settings.dt, m = 0.2, mu = 0.5, g = 9.81;
+  const Eigen::Vector3d mass(50.0, 20.0, 20.0);  // D of the rows z, x, y
+  struct Case {
+    const char* name;
+    RigidConstraint::Kind kind;
+    Eigen::Vector3d velocity, impulse, reference;  // x, y, z
+    bool released;
+  };
+  using Kind = RigidConstraint::Kind;
+  const double p = m * g * dt;
+  for (const Case& c : {
+           Case{"pressed", Kind::kUnilateral, {0, 0, -0.01}, {0, 0, -p}, {0, 0, 1.0}, false},
+           Case{"lifted", Kind::kUnilateral, {0, 0, 0}, {0, 0, 2 * p}, {0, 0, 0.0}, true},
+           Case{"pressed, pushed within the cone",
+                Kind::kEllipticCone,
+                {0.001, 0, -0.01},
+                {0.1 * p, -0.05 * p, -p},
+                {0, 0, 1.0},
+                false},
+           Case{"struck up", Kind::kEllipticCone, {0.001, 0, 0}, {0, 0, 5 * p}, {0, 0, 0}, true},
+           Case{"lifted a little, pushed hard",
+                Kind::kEllipticCone,
+                {0, 0, 0},
+                {2 * p, 0, 0.1 * p},
+                {0, 0, 0},
+                false},
+       }) {
+    SCOPED_TRACE(c.name);
+    DeformableBody body(model, "cube");
+    body.Reset(At({1.0, 0.0, 0.0}), Eigen::Vector3d::Zero());
+    RigidSystem rigid;
+    RigidTree& tree = rigid.trees.emplace_back();
+    tree.mass = m * Eigen::Matrix3d::Identity();
+    tree.velocity = c.velocity;
+    tree.impulse = c.impulse;
+    RigidConstraint& constraint = tree.constraints.emplace_back();
+    constraint.kind = c.kind;
+    const int rows = c.kind == Kind::kUnilateral ? 1 : 3;
+    const std::array<int, 3> axis = {2, 0, 1};  // each row's axis: z, x, y
+    constraint.jacobian.setZero(rows, 3);
+    constraint.mass.resize(rows);
+    constraint.reference.resize(rows);
+    for (int k = 0; k < rows; ++k) {
+      constraint.jacobian(k, axis[k]) = 1.0;
+      constraint.mass[k] = mass[k];
+      constraint.reference[k] = c.reference[axis[k]];
+    }
+    constraint.cone = Eigen::VectorXd::Constant(rows, mu);
+    std::vector<ContactPoint> contacts;
+    DeformableBody* bodies[1] = {&body};
+    const CoupledStepReport report = StepCoupled(bodies, contacts, {}, settings, &rigid);
+    ASSERT_EQ(report.status, StepStatus::kOk);
+    EXPECT_EQ(constraint.released, c.released);
+
+    // the held and the released solutions
+    Eigen::Vector3d held = c.velocity + c.impulse / m;
+    for (int k = 0; k < rows; ++k) {
+      const int a = axis[k];
+      held[a] =
+          (m * c.velocity[a] + c.impulse[a] + mass[k] * (c.velocity[a] + dt * c.reference[a])) /
+          (m + mass[k]);
+    }
+    const Eigen::Vector3d expected =
+        c.released ? Eigen::Vector3d(c.velocity + c.impulse / m) : held;
+    EXPECT_LT((tree.velocity_end - expected).norm(), 1e-9 * expected.norm())
+        << tree.velocity_end.transpose() << " vs " << expected.transpose();
+    // the held solution's zone: pulling (released) or not
+    Eigen::Vector3d r = Eigen::Vector3d::Zero();  // a - aref, per row
+    for (int k = 0; k < rows; ++k) {
+      r[k] = (held[axis[k]] - c.velocity[axis[k]]) / dt - c.reference[axis[k]];
+    }
+    if (c.kind == Kind::kUnilateral) {
+      EXPECT_EQ(r[0] > 0.0, c.released);
+    } else {
+      const double normal = mu * r[0];
+      const double tangential = mu * r.tail<2>().norm();
+      EXPECT_EQ(normal >= mu * tangential, c.released) << "the top zone";
+      if (std::string(c.name) == "lifted a little, pushed hard") {
+        EXPECT_GT(r[0], 0.0) << "its normal row alone would pull";
+        EXPECT_GT(mu * normal + tangential, 0.0) << "not in the bottom zone";
+      }
+    }
   }
 }
 
