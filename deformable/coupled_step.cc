@@ -2,6 +2,7 @@
 
 #include <Eigen/Cholesky>
 #include <algorithm>
+#include <array>
 #include <cmath>
 
 #include "mesh/parallel_for.h"
@@ -143,20 +144,18 @@ bool InsideFrictionCone(const Eigen::Vector3d& force, const ContactPoint& contac
   return Tangential(force, contact.direction).norm() <= FrictionLimit(force, contact);
 }
 
-// Whether a unilateral RigidConstraint pushes at a solution that changes
-// its tree's velocities by -`change` over dt: -dt r = J change + dt aref
-// (r: its rows' J a - aref, a = -change / dt); a row pushes where r <= 0,
-// an elliptic cone contact unless r is in the cone's top zone.
-bool ConstraintPushes(const RigidConstraint& constraint, const Eigen::VectorXd& change, double dt) {
-  if (constraint.kind == RigidConstraint::Kind::kUnilateral) {
-    return constraint.jacobian.row(0).dot(change) + dt * constraint.reference[0] >= 0.0;
-  }
+// Whether a unilateral RigidConstraint pushes at a solution where its rows
+// have -dt r = `pull` (r: the rows' J a - aref, a the trees' accelerations
+// over dt); a row pushes where r <= 0, an elliptic cone contact unless r
+// is in the cone's top zone.
+bool ConstraintPushes(const RigidConstraint& constraint,
+                      const std::array<double, kMaxConstraintRows>& pull) {
+  if (constraint.kind == RigidConstraint::Kind::kUnilateral) return pull[0] >= 0.0;
   // N and T of dt r scaled into the cone's space (the zones are cones: the
   // scale dt leaves them as they are)
   double normal = 0.0, tangential = 0.0;
   for (Eigen::Index row = 0; row < constraint.jacobian.rows(); ++row) {
-    const double u = -constraint.cone[row] *
-                     (constraint.jacobian.row(row).dot(change) + dt * constraint.reference[row]);
+    const double u = -constraint.cone[row] * pull[static_cast<size_t>(row)];
     if (row == 0) {
       normal = u;
     } else {
@@ -195,12 +194,38 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   std::vector<char> pinned(n, 0);
   Eigen::VectorXd delta = Eigen::VectorXd::Zero(n);
   // a rigid tree: M q+ = M q + impulse + its contacts' and constraints' share
-  for (int t = 0; t < num_trees; ++t) {
-    RigidTree& tree = rigid->trees[t];
-    for (RigidConstraint& constraint : tree.constraints) {
+  if (rigid != nullptr) {
+    for (RigidConstraint& constraint : rigid->constraints) {
       constraint.released = false;
       constraint.switches = 0;
     }
+  }
+  // J_i x for row i of a constraint, with part(t) tree t's share of x;
+  // y += s J_i^T
+  auto constraint_rate = [&](const RigidConstraint& constraint, Eigen::Index i, auto&& part) {
+    double rate = 0.0;
+    Eigen::Index column = 0;
+    for (const int t : constraint.trees) {
+      if (t < 0) break;
+      const Eigen::Index size = tree_offset[t + 1] - tree_offset[t];
+      rate += constraint.jacobian.row(i).segment(column, size).dot(part(t));
+      column += size;
+    }
+    return rate;
+  };
+  auto add_constraint_row = [&](const RigidConstraint& constraint, Eigen::Index i, double scale,
+                                Eigen::VectorXd& y) {
+    Eigen::Index column = 0;
+    for (const int t : constraint.trees) {
+      if (t < 0) break;
+      const Eigen::Index size = tree_offset[t + 1] - tree_offset[t];
+      y.segment(tree_offset[t], size) +=
+          scale * constraint.jacobian.row(i).segment(column, size).transpose();
+      column += size;
+    }
+  };
+  for (int t = 0; t < num_trees; ++t) {
+    RigidTree& tree = rigid->trees[t];
     const Eigen::Index size = tree.velocity.size();
     v.segment(tree_offset[t], size) = tree.velocity;
     b.segment(tree_offset[t], size) = tree.mass * tree.velocity + tree.impulse;
@@ -366,12 +391,16 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
       const RigidTree& tree = rigid->trees[t];
       const Eigen::Index size = tree.mass.rows();
       y.segment(tree_offset[t], size).noalias() = tree.mass * x.segment(tree_offset[t], size);
-      for (const RigidConstraint& constraint : tree.constraints) {
+    }
+    if (rigid != nullptr) {
+      auto part = [&](int t) {
+        return x.segment(tree_offset[t], tree_offset[t + 1] - tree_offset[t]);
+      };
+      for (const RigidConstraint& constraint : rigid->constraints) {
         if (constraint.released) continue;
         for (Eigen::Index i = 0; i < constraint.jacobian.rows(); ++i) {
-          const auto row = constraint.jacobian.row(i);
-          y.segment(tree_offset[t], size) +=
-              constraint.mass[i] * row.dot(x.segment(tree_offset[t], size)) * row.transpose();
+          add_constraint_row(constraint, i,
+                             constraint.mass[i] * constraint_rate(constraint, i, part), y);
         }
       }
     }
@@ -494,18 +523,25 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     // each tree's diagonal block of A, M + its active contacts' J^T G J
     // (inverted in place below unless the trees are eliminated)
     std::vector<Eigen::MatrixXd> tree_diagonal(num_trees);
-    for (int t = 0; t < num_trees; ++t) {
-      const RigidTree& tree = rigid->trees[t];
-      tree_diagonal[t] = tree.mass;
-      // its constraints, row by row: D J^T J, and D J^T (J v + dt aref) into b
-      for (const RigidConstraint& constraint : tree.constraints) {
+    for (int t = 0; t < num_trees; ++t) tree_diagonal[t] = rigid->trees[t].mass;
+    // the held constraints, row by row: D J^T J (its blocks on each tree's
+    // diagonal), and D J^T (J v + dt aref) into b
+    if (rigid != nullptr) {
+      auto start = [&](int t) -> const Eigen::VectorXd& { return rigid->trees[t].velocity; };
+      for (const RigidConstraint& constraint : rigid->constraints) {
         if (constraint.released) continue;
         for (Eigen::Index i = 0; i < constraint.jacobian.rows(); ++i) {
-          const auto row = constraint.jacobian.row(i);
-          tree_diagonal[t].noalias() += constraint.mass[i] * row.transpose() * row;
-          b.segment(tree_offset[t], tree.mass.rows()) +=
-              constraint.mass[i] * (row.dot(tree.velocity) + dt * constraint.reference[i]) *
-              row.transpose();
+          Eigen::Index column = 0;
+          for (const int t : constraint.trees) {
+            if (t < 0) break;
+            const auto row = constraint.jacobian.row(i).segment(column, tree_diagonal[t].rows());
+            tree_diagonal[t].noalias() += constraint.mass[i] * row.transpose() * row;
+            column += row.size();
+          }
+          add_constraint_row(constraint, i,
+                             constraint.mass[i] * (constraint_rate(constraint, i, start) +
+                                                   dt * constraint.reference[i]),
+                             b);
         }
       }
     }
@@ -567,6 +603,21 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
         const Eigen::Index first = tree_offset[t] - n_deformable;
         const Eigen::Index size = tree_offset[t + 1] - tree_offset[t];
         schur.block(first, first, size, size) = tree_diagonal[static_cast<size_t>(t)];
+      }
+      // (and the blocks D J_0^T J_1 of the constraints between two trees)
+      for (const RigidConstraint& constraint : rigid->constraints) {
+        if (constraint.released || constraint.trees[1] < 0) continue;
+        const int t0 = constraint.trees[0], t1 = constraint.trees[1];
+        const Eigen::Index size0 = tree_offset[t0 + 1] - tree_offset[t0];
+        const Eigen::Index size1 = tree_offset[t1 + 1] - tree_offset[t1];
+        for (Eigen::Index i = 0; i < constraint.jacobian.rows(); ++i) {
+          const auto row0 = constraint.jacobian.row(i).head(size0);
+          const auto row1 = constraint.jacobian.row(i).segment(size0, size1);
+          schur.block(tree_offset[t0] - n_deformable, tree_offset[t1] - n_deformable, size0,
+                      size1) += constraint.mass[i] * row0.transpose() * row1;
+          schur.block(tree_offset[t1] - n_deformable, tree_offset[t0] - n_deformable, size1,
+                      size0) += constraint.mass[i] * row1.transpose() * row0;
+        }
       }
       Eigen::VectorXd unit = Eigen::VectorXd::Zero(n), column(n_rigid);
       for (int j = 0; j < n_rigid; ++j) {
@@ -701,12 +752,20 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     // the other sign than their state: held ones that pull, released ones
     // that push (the rigid solver's active set; switched at most
     // kMaxConstraintSwitches times, so that the rounds end)
-    for (int t = 0; t < num_trees; ++t) {
-      RigidTree& tree = rigid->trees[t];
-      const auto v_tree = v_new.segment(tree_offset[t], tree.velocity.size());
-      for (RigidConstraint& constraint : tree.constraints) {
+    if (rigid != nullptr) {
+      // (each tree's velocity change over the step, with the sign flipped)
+      auto change = [&](int t) {
+        return rigid->trees[t].velocity -
+               v_new.segment(tree_offset[t], tree_offset[t + 1] - tree_offset[t]);
+      };
+      for (RigidConstraint& constraint : rigid->constraints) {
         if (constraint.kind == RigidConstraint::Kind::kEquality) continue;
-        const bool pushes = ConstraintPushes(constraint, tree.velocity - v_tree, dt);
+        std::array<double, kMaxConstraintRows> pull{};
+        for (Eigen::Index i = 0; i < constraint.jacobian.rows(); ++i) {
+          pull[static_cast<size_t>(i)] =
+              constraint_rate(constraint, i, change) + dt * constraint.reference[i];
+        }
+        const bool pushes = ConstraintPushes(constraint, pull);
         if (pushes == constraint.released && constraint.switches < kMaxConstraintSwitches) {
           constraint.released = !pushes;
           ++constraint.switches;

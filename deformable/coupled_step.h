@@ -47,6 +47,7 @@
 // integrates (to kSlidingForceTolerance). After the step each contact's
 // `stick` holds its friction spring for the next.
 
+#include <array>
 #include <span>
 #include <vector>
 
@@ -80,13 +81,13 @@ struct CoupledStepReport {
 // with whatever else acts on them, which the prediction here leaves out
 // beyond `impulse`).
 //
-// A constraint of the rigid bodies' own solver on a tree, linearized about
-// its state at the step's start: the force of each of its rows is
-// D (aref - J a), a the tree's acceleration over the step (MuJoCo's
-// constraint rows in their quadratic state, D their efc_D, aref their
-// efc_aref), so it adds J^T D J to the tree's mass and dt J^T D aref to its
-// impulse. A unilateral one (a contact's, a joint limit's) only pushes:
-// where a solution has it pull, it is released (no force), as the rigid
+// A constraint of the rigid bodies' own solver on one tree or between two,
+// linearized about its state at the step's start: the force of each of its
+// rows is D (aref - J a), a the trees' accelerations over the step
+// (MuJoCo's constraint rows in their quadratic state, D their efc_D, aref
+// their efc_aref), so it adds J^T D J to the trees' mass (between two
+// trees, coupling them) and dt J^T D aref to their impulse. A unilateral one (a contact's, a joint
+// limit's) only pushes: where a solution has it pull, it is released (no force), as the rigid
 // solver will find it released, and taken back where it then pushes, as
 // the rigid solver's active set does (kMaxConstraintSwitches times at
 // most). (Held, a joint limit under a lid struck from below held the lid to
@@ -101,8 +102,11 @@ struct CoupledStepReport {
 // (sticking): a step whose contacts start sticking predicts them sticking.
 struct RigidConstraint {
   enum class Kind { kEquality, kUnilateral, kEllipticCone };
-  // rows x n: J, the rates of its rows from the tree's velocities (one row,
-  // or an elliptic cone contact's normal row then its 1 to 5 friction rows)
+  // the trees it acts on (RigidSystem::trees): trees[1] < 0 for one
+  std::array<int, 2> trees = {-1, -1};
+  // rows x (n_0 + n_1): J, the rates of its rows from the velocities of
+  // trees[0], then of trees[1] (one row, or an elliptic cone contact's
+  // normal row then its 1 to 5 friction rows)
   Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> jacobian;
   Eigen::VectorXd mass;       // per row: D (> 0)
   Eigen::VectorXd reference;  // per row: aref
@@ -116,10 +120,9 @@ struct RigidConstraint {
 // The most rows a RigidConstraint has (an elliptic cone contact's, condim 6)
 inline constexpr int kMaxConstraintRows = 6;
 struct RigidTree {
-  Eigen::MatrixXd mass;      // n x n (n: the tree's degrees of freedom), positive definite
-  Eigen::VectorXd velocity;  // n, at the step's start
-  Eigen::VectorXd impulse;   // n, dt x the other generalized forces (gravity, bias, springs)
-  std::vector<RigidConstraint> constraints;
+  Eigen::MatrixXd mass;          // n x n (n: the tree's degrees of freedom), positive definite
+  Eigen::VectorXd velocity;      // n, at the step's start
+  Eigen::VectorXd impulse;       // n, dt x the other generalized forces (gravity, bias, springs)
   Eigen::VectorXd velocity_end;  // out: n, at the step's end as the step predicts it
 };
 struct RigidPoint {
@@ -148,6 +151,7 @@ struct RigidSystem {
   std::vector<RigidTree> trees;
   std::vector<RigidPoint> points;  // ContactPoint::rigid_point and RigidPin::point index this
   std::vector<RigidPin> pins;
+  std::vector<RigidConstraint> constraints;
 };
 
 // Solves per step in which contacts may change any way; from the last of

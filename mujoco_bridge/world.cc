@@ -1062,14 +1062,14 @@ int World::ConstraintRows(int row) const {
 // an active limit or contact, an elliptic cone contact's rows in its bottom
 // zone) is D_i (aref_i - J_i a) (D_i: efc_D, aref_i: its reference
 // acceleration, from the state at the step's start): the step takes such a
-// constraint on a tree it solves as a RigidConstraint of that tree
-// (coupled_step.h), in place of its solved force, unilateral but for an
-// equality. A constraint between that tree and one the step does not solve
-// (a box resting on another) is taken with that one held still: J on the
-// solved tree's degrees of freedom alone. The other rows (satisfied, an
-// elliptic cone contact in its middle zone, friction loss, between two
-// trees the step solves, on three or more) keep the force MuJoCo solved for
-// them with the last step's forces of ours.
+// constraint on the trees it solves as a RigidConstraint (coupled_step.h),
+// in place of its solved force, unilateral but for an equality. A
+// constraint between a solved tree and one the step does not solve (a box
+// resting on another) is taken with that one held still: J on the solved
+// tree's degrees of freedom alone. The other rows (satisfied, an elliptic
+// cone contact in its middle zone, friction loss, on three trees or more)
+// keep the force MuJoCo solved for them with the last step's forces of
+// ours.
 void World::LinearizeConstraints(double dt) {
   const mjModel* m = model_;
   const mjData* d = data_;
@@ -1081,31 +1081,40 @@ void World::LinearizeConstraints(double dt) {
         type == mjCNSTR_FRICTION_TENDON) {
       continue;
     }
-    // the one tree of the constraint that the step solves (not neither, not both)
-    const std::array<int, 2>& trees = row_trees_[static_cast<size_t>(first)];
-    auto solved = [&](int root) { return root >= 0 && tree_slot_[root] >= 0; };
-    if (solved(trees[0]) == solved(trees[1])) continue;
-    const int root = solved(trees[0]) ? trees[0] : trees[1];
-    RigidTree& tree = rigid_.trees[static_cast<size_t>(tree_slot_[root])];
-    const int first_dof = tree_first_dof_[root];
-    const int size = static_cast<int>(tree.velocity.size());
-    RigidConstraint& constraint = tree.constraints.emplace_back();
-    constraint.jacobian.setZero(rows, size);
+    // the constraint's trees that the step solves (one or two), their
+    // slots in rigid_ and their first degrees of freedom in MuJoCo's
+    std::array<int, 2> slots = {-1, -1}, first_dofs = {0, 0};
+    int num_solved = 0, num_columns = 0;
+    for (const int root : row_trees_[static_cast<size_t>(first)]) {
+      if (root < 0 || tree_slot_[root] < 0) continue;
+      slots[num_solved] = tree_slot_[root];
+      first_dofs[num_solved++] = tree_first_dof_[root];
+      num_columns += tree_num_dofs_[root];
+    }
+    if (num_solved == 0) continue;
+    RigidConstraint& constraint = rigid_.constraints.emplace_back();
+    constraint.trees = slots;
+    constraint.jacobian.setZero(rows, num_columns);
     for (int r = 0; r < rows; ++r) {
       const int i = first + r;
-      if (sparse) {
-        for (int k = 0; k < d->efc_J_rownnz[i]; ++k) {
-          const int address = d->efc_J_rowadr[i] + k;
-          const int dof = d->efc_J_colind[address];
-          if (dof >= first_dof && dof < first_dof + size) {
-            constraint.jacobian(r, dof - first_dof) = d->efc_J[address];
+      int column = 0;
+      for (int k = 0; k < num_solved; ++k) {
+        RigidTree& tree = rigid_.trees[static_cast<size_t>(slots[k])];
+        const int size = static_cast<int>(tree.velocity.size());
+        auto row = constraint.jacobian.row(r).segment(column, size);
+        if (sparse) {
+          for (int e = 0; e < d->efc_J_rownnz[i]; ++e) {
+            const int address = d->efc_J_rowadr[i] + e;
+            const int dof = d->efc_J_colind[address] - first_dofs[k];
+            if (dof >= 0 && dof < size) row[dof] = d->efc_J[address];
           }
+        } else {
+          row = Eigen::Map<const Eigen::RowVectorXd>(
+              d->efc_J + static_cast<size_t>(i) * m->nv + first_dofs[k], size);
         }
-      } else {
-        constraint.jacobian.row(r) = Eigen::Map<const Eigen::RowVectorXd>(
-            d->efc_J + static_cast<size_t>(i) * m->nv + first_dof, size);
+        tree.impulse -= dt * d->efc_force[i] * row.transpose();
+        column += size;
       }
-      tree.impulse -= dt * d->efc_force[i] * constraint.jacobian.row(r).transpose();
     }
     constraint.mass = Eigen::Map<const Eigen::VectorXd>(d->efc_D + first, rows);
     constraint.reference = Eigen::Map<const Eigen::VectorXd>(d->efc_aref + first, rows);
@@ -1162,6 +1171,7 @@ void World::BuildRigidSystem(double dt) {
   rigid_.trees.clear();
   rigid_.points.clear();
   rigid_.pins.clear();
+  rigid_.constraints.clear();
   if (!scene_.solver.implicit_rigid) return;
   // the point p_W of `body` (whose tree has degrees of freedom) in the
   // system, its tree added first if it is not yet

@@ -10,6 +10,7 @@
 #include <numbers>
 #include <span>
 #include <string>
+#include <tuple>
 #include <vector>
 
 #include "collision/penetration.h"
@@ -398,7 +399,8 @@ TEST(RigidConstraint, IsReleasedExactlyWhereItsForceWouldPull) {
     tree.mass = m * Eigen::Matrix3d::Identity();
     tree.velocity = c.velocity;
     tree.impulse = c.impulse;
-    RigidConstraint& constraint = tree.constraints.emplace_back();
+    RigidConstraint& constraint = rigid.constraints.emplace_back();
+    constraint.trees = {0, -1};
     constraint.kind = c.kind;
     const int rows = c.kind == Kind::kUnilateral ? 1 : 3;
     const std::array<int, 3> axis = {2, 0, 1};  // each row's axis: z, x, y
@@ -446,6 +448,50 @@ TEST(RigidConstraint, IsReleasedExactlyWhereItsForceWouldPull) {
       }
     }
   }
+}
+
+// A constraint between two trees (two points of masses m1, m2, joined
+// along x by an equality row J = [e_x, -e_x] with D and aref): the step
+// keeps their total momentum but for their impulses, and their relative
+// velocity u = v1_x - v2_x follows the row's law with the reduced mass
+// mu = m1 m2 / (m1 + m2): mu (u+ - u) = mu (p1_x / m1 - p2_x / m2) +
+// D (u + dt aref - u+). Across x the points move freely.
+TEST(RigidConstraint, BetweenTwoTreesActsWithTheirReducedMass) {
+  auto model = Model("box:size=0.05:res=2");
+  StepSettings settings;
+  settings.gravity.setZero();
+  settings.cg_tolerance = 1e-12;
+  const double dt = settings.dt, m1 = 0.2, m2 = 0.7, D = 30.0, aref = -2.0;
+  const Eigen::Vector3d v1(0.3, 0.1, 0.0), v2(-0.2, 0.0, 0.5);
+  const Eigen::Vector3d p1(0.004, 0.001, 0.0), p2(-0.001, 0.0, 0.002);
+  DeformableBody body(model, "cube");
+  body.Reset(At({1.0, 0.0, 0.0}), Eigen::Vector3d::Zero());
+  RigidSystem rigid;
+  for (const auto& [m, v, p] : {std::tuple{m1, v1, p1}, std::tuple{m2, v2, p2}}) {
+    RigidTree& tree = rigid.trees.emplace_back();
+    tree.mass = m * Eigen::Matrix3d::Identity();
+    tree.velocity = v;
+    tree.impulse = p;
+  }
+  RigidConstraint& constraint = rigid.constraints.emplace_back();
+  constraint.trees = {0, 1};
+  constraint.jacobian.setZero(1, 6);
+  constraint.jacobian(0, 0) = 1.0;
+  constraint.jacobian(0, 3) = -1.0;
+  constraint.mass = Eigen::VectorXd::Constant(1, D);
+  constraint.reference = Eigen::VectorXd::Constant(1, aref);
+  std::vector<ContactPoint> contacts;
+  DeformableBody* bodies[1] = {&body};
+  ASSERT_EQ(StepCoupled(bodies, contacts, {}, settings, &rigid).status, StepStatus::kOk);
+  const Eigen::Vector3d w1 = rigid.trees[0].velocity_end, w2 = rigid.trees[1].velocity_end;
+  const Eigen::Vector3d momentum_change = m1 * (w1 - v1) + m2 * (w2 - v2) - (p1 + p2);
+  EXPECT_LT(momentum_change.norm(), 1e-12);
+  const double mu = m1 * m2 / (m1 + m2), u = v1.x() - v2.x();
+  const double free_change = p1.x() / m1 - p2.x() / m2;
+  const double expected = (mu * (u + free_change) + D * (u + dt * aref)) / (mu + D);
+  EXPECT_NEAR(w1.x() - w2.x(), expected, 1e-10 * std::abs(expected));
+  EXPECT_NEAR(w1.y(), v1.y() + p1.y() / m1, 1e-12);
+  EXPECT_NEAR(w2.z(), v2.z() + p2.z() / m2, 1e-12);
 }
 
 TEST(DeformableBody, StiffCubeAtTenMillisecondsStaysBounded) {
