@@ -144,28 +144,47 @@ bool InsideFrictionCone(const Eigen::Vector3d& force, const ContactPoint& contac
   return Tangential(force, contact.direction).norm() <= FrictionLimit(force, contact);
 }
 
-// Whether a unilateral RigidConstraint pushes at a solution where its rows
-// have -dt r = `pull` (r: the rows' J a - aref, a the trees' accelerations
-// over dt); a row pushes where r <= 0, an elliptic cone contact unless r
-// is in the cone's top zone.
-bool ConstraintPushes(const RigidConstraint& constraint,
-                      const std::array<double, kMaxConstraintRows>& pull) {
-  if (constraint.kind == RigidConstraint::Kind::kUnilateral) return pull[0] >= 0.0;
-  // N and T of dt r scaled into the cone's space (the zones are cones: the
-  // scale dt leaves them as they are)
-  double normal = 0.0, tangential = 0.0;
-  for (Eigen::Index row = 0; row < constraint.jacobian.rows(); ++row) {
-    const double u = -constraint.cone[row] * pull[static_cast<size_t>(row)];
-    if (row == 0) {
-      normal = u;
-    } else {
-      tangential += u * u;
-    }
-  }
-  tangential = std::sqrt(tangential);
+enum class ConeZone { kBottom, kMiddle, kTop };
+
+// The zone of an elliptic cone contact (RigidConstraint) whose rows have
+// J a - aref = r, as the rigid solver's: with u = cone r, N = u_0 and T the
+// norm of the rest, the top (no force) where N >= mu T, the bottom (each
+// row quadratic) where mu N + T <= 0
+ConeZone Zone(const RigidConstraint& constraint, const Eigen::VectorXd& r) {
+  const Eigen::VectorXd u = constraint.cone.cwiseProduct(r);
   const double mu = constraint.cone[0];
-  const bool top = normal >= mu * tangential || (tangential <= 0.0 && normal >= 0.0);
-  return !top;
+  const double normal = u[0];
+  const double tangential = u.tail(u.size() - 1).norm();
+  if (normal >= mu * tangential || (tangential <= 0.0 && normal >= 0.0)) return ConeZone::kTop;
+  if (mu * normal + tangential <= 0.0 || (tangential <= 0.0 && normal < 0.0)) {
+    return ConeZone::kBottom;
+  }
+  return ConeZone::kMiddle;
+}
+
+// An elliptic cone contact's force in the middle zone at r (coupled_step.h,
+// RigidConstraint), and H = -df/dr there
+void MiddleZoneForce(const RigidConstraint& constraint, const Eigen::VectorXd& r,
+                     Eigen::VectorXd& force, Eigen::MatrixXd& hessian) {
+  const Eigen::Index n = r.size();
+  const Eigen::VectorXd& scale = constraint.cone;
+  const double mu = scale[0];
+  const Eigen::VectorXd u = scale.cwiseProduct(r);
+  const Eigen::VectorXd tangent = u.tail(n - 1);
+  const double tangential = tangent.norm();
+  const double gap = u[0] - mu * tangential;  // N - mu T (< 0 here)
+  const double dm = constraint.mass[0] / (mu * mu * (1.0 + mu * mu));
+  // the gradient of N - mu T in u, and the cost's second derivative in u
+  Eigen::VectorXd gradient(n);
+  gradient[0] = 1.0;
+  gradient.tail(n - 1) = -mu / tangential * tangent;
+  Eigen::MatrixXd second = dm * gradient * gradient.transpose();
+  second.bottomRightCorner(n - 1, n - 1) -=
+      dm * gap * mu / tangential *
+      (Eigen::MatrixXd::Identity(n - 1, n - 1) -
+       tangent * tangent.transpose() / (tangential * tangential));
+  force = -dm * gap * scale.cwiseProduct(gradient);
+  hessian = scale.asDiagonal() * second * scale.asDiagonal();
 }
 
 }  // namespace
@@ -194,11 +213,45 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   std::vector<char> pinned(n, 0);
   Eigen::VectorXd delta = Eigen::VectorXd::Zero(n);
   // a rigid tree: M q+ = M q + impulse + its contacts' and constraints' share
-  if (rigid != nullptr) {
-    for (RigidConstraint& constraint : rigid->constraints) {
-      constraint.released = false;
-      constraint.switches = 0;
+  // Each held constraint's force over the step, dt f = g - H (J v+ - J v -
+  // dt aref) (r = J a - aref; held in a row's quadratic state, or in a
+  // cone's bottom zone: H = D, g = 0; sliding in a cone's middle zone:
+  // linearized about r_0, where its force is f_0, g = dt (f_0 + H r_0))
+  struct ConstraintLaw {
+    Eigen::MatrixXd hessian;  // H
+    Eigen::VectorXd offset;   // g
+    Eigen::VectorXd force;    // (sliding) f_0
+    Eigen::VectorXd about;    // (sliding) r_0
+    int linearizations = 0;
+  };
+  const size_t num_constraints = rigid != nullptr ? rigid->constraints.size() : 0;
+  std::vector<ConstraintLaw> laws(num_constraints);
+  auto hold = [&](size_t k) {
+    RigidConstraint& constraint = rigid->constraints[k];
+    laws[k].hessian = constraint.mass.asDiagonal();
+    laws[k].offset.setZero(constraint.mass.size());
+    constraint.released = constraint.sliding = false;
+  };
+  auto slide_about = [&](size_t k, const Eigen::VectorXd& r) {
+    RigidConstraint& constraint = rigid->constraints[k];
+    ConstraintLaw& law = laws[k];
+    MiddleZoneForce(constraint, r, law.force, law.hessian);
+    law.offset = dt * (law.force + law.hessian * r);
+    law.about = r;
+    constraint.released = false;
+    constraint.sliding = true;
+  };
+  for (size_t k = 0; k < num_constraints; ++k) {
+    RigidConstraint& constraint = rigid->constraints[k];
+    constraint.switches = 0;
+    hold(k);
+    if (constraint.kind != RigidConstraint::Kind::kEllipticCone ||
+        constraint.start_residual.size() == 0) {
+      continue;
     }
+    const ConeZone zone = Zone(constraint, constraint.start_residual);
+    if (zone == ConeZone::kMiddle) slide_about(k, constraint.start_residual);
+    constraint.released = zone == ConeZone::kTop;
   }
   // J_i x for row i of a constraint, with part(t) tree t's share of x;
   // y += s J_i^T
@@ -392,16 +445,26 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
       const Eigen::Index size = tree.mass.rows();
       y.segment(tree_offset[t], size).noalias() = tree.mass * x.segment(tree_offset[t], size);
     }
-    if (rigid != nullptr) {
-      auto part = [&](int t) {
-        return x.segment(tree_offset[t], tree_offset[t + 1] - tree_offset[t]);
-      };
-      for (const RigidConstraint& constraint : rigid->constraints) {
-        if (constraint.released) continue;
-        for (Eigen::Index i = 0; i < constraint.jacobian.rows(); ++i) {
-          add_constraint_row(constraint, i,
-                             constraint.mass[i] * constraint_rate(constraint, i, part), y);
+    auto part = [&](int t) {
+      return x.segment(tree_offset[t], tree_offset[t + 1] - tree_offset[t]);
+    };
+    for (size_t k = 0; k < num_constraints; ++k) {
+      const RigidConstraint& constraint = rigid->constraints[k];
+      if (constraint.released) continue;
+      // J^T H J x
+      const Eigen::Index rows = constraint.jacobian.rows();
+      std::array<double, kMaxConstraintRows> rate{};
+      for (Eigen::Index i = 0; i < rows; ++i) {
+        rate[static_cast<size_t>(i)] = constraint_rate(constraint, i, part);
+      }
+      for (Eigen::Index i = 0; i < rows; ++i) {
+        double scale = 0.0;
+        for (Eigen::Index j = 0; j < rows; ++j) {
+          if (laws[k].hessian(i, j) != 0.0) {
+            scale += laws[k].hessian(i, j) * rate[static_cast<size_t>(j)];
+          }
         }
+        add_constraint_row(constraint, i, scale, y);
       }
     }
     for (const Coupling& coupling : couplings) {
@@ -524,25 +587,35 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     // (inverted in place below unless the trees are eliminated)
     std::vector<Eigen::MatrixXd> tree_diagonal(num_trees);
     for (int t = 0; t < num_trees; ++t) tree_diagonal[t] = rigid->trees[t].mass;
-    // the held constraints, row by row: D J^T J (its blocks on each tree's
-    // diagonal), and D J^T (J v + dt aref) into b
-    if (rigid != nullptr) {
-      auto start = [&](int t) -> const Eigen::VectorXd& { return rigid->trees[t].velocity; };
-      for (const RigidConstraint& constraint : rigid->constraints) {
-        if (constraint.released) continue;
-        for (Eigen::Index i = 0; i < constraint.jacobian.rows(); ++i) {
+    // the held constraints: J^T H J (its blocks on each tree's diagonal),
+    // and J^T (g + H (J v + dt aref)) into b
+    auto start = [&](int t) -> const Eigen::VectorXd& { return rigid->trees[t].velocity; };
+    for (size_t k = 0; k < num_constraints; ++k) {
+      const RigidConstraint& constraint = rigid->constraints[k];
+      if (constraint.released) continue;
+      const Eigen::MatrixXd& hessian = laws[k].hessian;
+      const Eigen::Index rows = constraint.jacobian.rows();
+      std::array<double, kMaxConstraintRows> rate{};
+      for (Eigen::Index i = 0; i < rows; ++i) {
+        rate[static_cast<size_t>(i)] =
+            constraint_rate(constraint, i, start) + dt * constraint.reference[i];
+      }
+      for (Eigen::Index i = 0; i < rows; ++i) {
+        double scale = laws[k].offset[i];
+        for (Eigen::Index j = 0; j < rows; ++j) {
+          if (hessian(i, j) == 0.0) continue;
+          scale += hessian(i, j) * rate[static_cast<size_t>(j)];
           Eigen::Index column = 0;
           for (const int t : constraint.trees) {
             if (t < 0) break;
-            const auto row = constraint.jacobian.row(i).segment(column, tree_diagonal[t].rows());
-            tree_diagonal[t].noalias() += constraint.mass[i] * row.transpose() * row;
-            column += row.size();
+            const Eigen::Index size = tree_diagonal[t].rows();
+            const auto row_i = constraint.jacobian.row(i).segment(column, size);
+            const auto row_j = constraint.jacobian.row(j).segment(column, size);
+            tree_diagonal[t].noalias() += hessian(i, j) * row_i.transpose() * row_j;
+            column += size;
           }
-          add_constraint_row(constraint, i,
-                             constraint.mass[i] * (constraint_rate(constraint, i, start) +
-                                                   dt * constraint.reference[i]),
-                             b);
         }
+        add_constraint_row(constraint, i, scale, b);
       }
     }
     rigid_couplings.clear();
@@ -604,19 +677,25 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
         const Eigen::Index size = tree_offset[t + 1] - tree_offset[t];
         schur.block(first, first, size, size) = tree_diagonal[static_cast<size_t>(t)];
       }
-      // (and the blocks D J_0^T J_1 of the constraints between two trees)
-      for (const RigidConstraint& constraint : rigid->constraints) {
+      // (and the blocks J_0^T H J_1 of the constraints between two trees)
+      for (size_t k = 0; k < num_constraints; ++k) {
+        const RigidConstraint& constraint = rigid->constraints[k];
         if (constraint.released || constraint.trees[1] < 0) continue;
         const int t0 = constraint.trees[0], t1 = constraint.trees[1];
         const Eigen::Index size0 = tree_offset[t0 + 1] - tree_offset[t0];
         const Eigen::Index size1 = tree_offset[t1 + 1] - tree_offset[t1];
-        for (Eigen::Index i = 0; i < constraint.jacobian.rows(); ++i) {
-          const auto row0 = constraint.jacobian.row(i).head(size0);
-          const auto row1 = constraint.jacobian.row(i).segment(size0, size1);
-          schur.block(tree_offset[t0] - n_deformable, tree_offset[t1] - n_deformable, size0,
-                      size1) += constraint.mass[i] * row0.transpose() * row1;
-          schur.block(tree_offset[t1] - n_deformable, tree_offset[t0] - n_deformable, size1,
-                      size0) += constraint.mass[i] * row1.transpose() * row0;
+        const Eigen::Index rows = constraint.jacobian.rows();
+        for (Eigen::Index i = 0; i < rows; ++i) {
+          for (Eigen::Index j = 0; j < rows; ++j) {
+            const double h = laws[k].hessian(i, j);
+            if (h == 0.0) continue;
+            const auto row0 = constraint.jacobian.row(i).head(size0);
+            const auto row1 = constraint.jacobian.row(j).segment(size0, size1);
+            schur.block(tree_offset[t0] - n_deformable, tree_offset[t1] - n_deformable, size0,
+                        size1) += h * row0.transpose() * row1;
+            schur.block(tree_offset[t1] - n_deformable, tree_offset[t0] - n_deformable, size1,
+                        size0) += h * row1.transpose() * row0;
+          }
         }
       }
       Eigen::VectorXd unit = Eigen::VectorXd::Zero(n), column(n_rigid);
@@ -748,27 +827,61 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
       contacts[c].force = coupling.active ? force : Eigen::Vector3d::Zero();
       report.released_contacts += !coupling.active;
     }
-    // the trees' unilateral constraints whose force at this solution has
-    // the other sign than their state: held ones that pull, released ones
-    // that push (the rigid solver's active set; switched at most
-    // kMaxConstraintSwitches times, so that the rounds end)
-    if (rigid != nullptr) {
-      // (each tree's velocity change over the step, with the sign flipped)
-      auto change = [&](int t) {
-        return rigid->trees[t].velocity -
-               v_new.segment(tree_offset[t], tree_offset[t + 1] - tree_offset[t]);
-      };
-      for (RigidConstraint& constraint : rigid->constraints) {
-        if (constraint.kind == RigidConstraint::Kind::kEquality) continue;
-        std::array<double, kMaxConstraintRows> pull{};
-        for (Eigen::Index i = 0; i < constraint.jacobian.rows(); ++i) {
-          pull[static_cast<size_t>(i)] =
-              constraint_rate(constraint, i, change) + dt * constraint.reference[i];
-        }
-        const bool pushes = ConstraintPushes(constraint, pull);
-        if (pushes == constraint.released && constraint.switches < kMaxConstraintSwitches) {
+    // the trees' unilateral constraints whose state this solution changes:
+    // held rows that pull, released ones that push, elliptic cone contacts
+    // in another zone (the rigid solver's active set; switched at most
+    // kMaxConstraintSwitches times, so that the rounds end), and sliding
+    // ones whose force here is off their linearized one
+    // (each tree's velocity change over the step, with the sign flipped)
+    auto change = [&](int t) {
+      return rigid->trees[t].velocity -
+             v_new.segment(tree_offset[t], tree_offset[t + 1] - tree_offset[t]);
+    };
+    for (size_t k = 0; k < num_constraints; ++k) {
+      RigidConstraint& constraint = rigid->constraints[k];
+      if (constraint.kind == RigidConstraint::Kind::kEquality) continue;
+      // -dt r, with r = J a - aref
+      const Eigen::Index rows = constraint.jacobian.rows();
+      Eigen::VectorXd pull(rows);
+      for (Eigen::Index i = 0; i < rows; ++i) {
+        pull[i] = constraint_rate(constraint, i, change) + dt * constraint.reference[i];
+      }
+      const bool may_switch = constraint.switches < kMaxConstraintSwitches;
+      if (constraint.kind == RigidConstraint::Kind::kUnilateral) {
+        const bool pushes = pull[0] >= 0.0;
+        if (pushes == constraint.released && may_switch) {
           constraint.released = !pushes;
           ++constraint.switches;
+          changed = true;
+        }
+        continue;
+      }
+      const Eigen::VectorXd residual = -pull / dt;
+      const ConeZone zone = Zone(constraint, residual);
+      const ConeZone state = constraint.released  ? ConeZone::kTop
+                             : constraint.sliding ? ConeZone::kMiddle
+                                                  : ConeZone::kBottom;
+      if (zone != state && may_switch) {
+        if (zone == ConeZone::kTop) {
+          constraint.released = true;
+          constraint.sliding = false;
+        } else if (zone == ConeZone::kBottom) {
+          hold(k);
+        } else {
+          slide_about(k, residual);
+        }
+        ++constraint.switches;
+        changed = true;
+      } else if (zone == ConeZone::kMiddle && state == ConeZone::kMiddle &&
+                 laws[k].linearizations < kMaxConeLinearizations) {
+        Eigen::VectorXd force;
+        Eigen::MatrixXd hessian;
+        MiddleZoneForce(constraint, residual, force, hessian);
+        const Eigen::VectorXd on_line =
+            laws[k].force - laws[k].hessian * (residual - laws[k].about);
+        if ((force - on_line).norm() > kConeForceTolerance * force.norm()) {
+          slide_about(k, residual);
+          ++laws[k].linearizations;
           changed = true;
         }
       }

@@ -97,9 +97,15 @@ struct CoupledStepReport {
 // released and taken back as one: released where a solution puts it in
 // the cone's top zone (no force: N >= mu T, with N = mu r_0 and T the norm
 // of the friction rows' r_j scaled by their coefficients, r the rows'
-// J a - aref), held otherwise. In the cone's middle zone (sliding, with
-// its force on the cone's surface) it is held as in the bottom zone
-// (sticking): a step whose contacts start sticking predicts them sticking.
+// J a - aref), held otherwise: in the bottom zone (sticking) each row's
+// force is D (aref - J a) as above; in the middle zone (sliding) the force
+// lies on the cone's surface, the rigid solver's -d/dr of
+// 0.5 Dm (N - mu T)^2 (Dm = D_0 / (mu^2 (1 + mu^2))), which is not linear:
+// the step takes it linearized about a solution, f + H (r_0 - r) with
+// H = -df/dr at r_0 (positive semidefinite: the cost is convex), and
+// linearizes it again about each solution whose force differs from that
+// line's by more than kConeForceTolerance (Newton's method over the
+// rounds, kMaxConeLinearizations times at most).
 struct RigidConstraint {
   enum class Kind { kEquality, kUnilateral, kEllipticCone };
   // the trees it acts on (RigidSystem::trees): trees[1] < 0 for one
@@ -114,7 +120,12 @@ struct RigidConstraint {
   // kEllipticCone: per row, the scale into the cone's space: mu for the
   // normal row, then each friction row's coefficient
   Eigen::VectorXd cone;
+  // kEllipticCone: per row, J a - aref at the rigid solver's solution at
+  // the step's start, whose zone the step starts it in (and about which it
+  // starts linearized, in the middle zone); empty: the bottom zone
+  Eigen::VectorXd start_residual;
   bool released = false;  // out: released by the step
+  bool sliding = false;   // out: kEllipticCone, in the cone's middle zone
   int switches = 0;       // out: how often the step released it or took it back
 };
 // The most rows a RigidConstraint has (an elliptic cone contact's, condim 6)
@@ -161,6 +172,12 @@ inline constexpr int kMaxContactRounds = 8;
 // How often a rigid tree's unilateral constraint may be released or taken
 // back in a step (RigidConstraint).
 inline constexpr int kMaxConstraintSwitches = 4;
+// An elliptic cone contact sliding in a step (RigidConstraint) is
+// linearized again about a solution where its force there differs from the
+// linearized one by more than this share, at most kMaxConeLinearizations
+// times.
+inline constexpr double kConeForceTolerance = 1e-4;
+inline constexpr int kMaxConeLinearizations = 8;
 // The relative residual of the solves that only settle which contacts push.
 inline constexpr double kSettlingTolerance = 1e-3;
 // A sliding contact's friction is set again (and the step solved again)

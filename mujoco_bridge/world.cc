@@ -1063,22 +1063,28 @@ int World::ConstraintRows(int row) const {
 // zone) is D_i (aref_i - J_i a) (D_i: efc_D, aref_i: its reference
 // acceleration, from the state at the step's start): the step takes such a
 // constraint on the trees it solves as a RigidConstraint (coupled_step.h),
-// in place of its solved force, unilateral but for an equality. A
+// in place of its solved force, unilateral but for an equality; so an
+// elliptic cone contact in its middle zone (sliding), whose force the step
+// linearizes about MuJoCo's solution (RigidConstraint::start_residual). A
 // constraint between a solved tree and one the step does not solve (a box
 // resting on another) is taken with that one held still: J on the solved
-// tree's degrees of freedom alone. The other rows (satisfied, an elliptic
-// cone contact in its middle zone, friction loss, on three trees or more)
-// keep the force MuJoCo solved for them with the last step's forces of
-// ours.
+// tree's degrees of freedom alone. The other rows (satisfied, friction
+// loss, on three trees or more) keep the force MuJoCo solved for them with
+// the last step's forces of ours.
 void World::LinearizeConstraints(double dt) {
   const mjModel* m = model_;
-  const mjData* d = data_;
+  mjData* d = data_;
   const bool sparse = mj_isSparse(m) != 0;
+  // J qacc, each row's rate at MuJoCo's solution
+  constraint_rates_.resize(static_cast<size_t>(d->nefc));
+  mj_mulJacVec(m, d, constraint_rates_.data(), d->qacc);
   for (int first = 0, rows = 1; first < d->nefc; first += rows) {
     rows = ConstraintRows(first);
     const int type = d->efc_type[first];
-    if (d->efc_state[first] != mjCNSTRSTATE_QUADRATIC || type == mjCNSTR_FRICTION_DOF ||
-        type == mjCNSTR_FRICTION_TENDON) {
+    const int state = d->efc_state[first];
+    if (!(state == mjCNSTRSTATE_QUADRATIC ||
+          (state == mjCNSTRSTATE_CONE && type == mjCNSTR_CONTACT_ELLIPTIC)) ||
+        type == mjCNSTR_FRICTION_DOF || type == mjCNSTR_FRICTION_TENDON) {
       continue;
     }
     // the constraint's trees that the step solves (one or two), their
@@ -1125,6 +1131,9 @@ void World::LinearizeConstraints(double dt) {
       const mjContact& contact = d->contact[d->efc_id[first]];
       constraint.cone = Eigen::VectorXd::NullaryExpr(
           rows, [&](Eigen::Index r) { return r == 0 ? contact.mu : contact.friction[r - 1]; });
+      constraint.start_residual =
+          Eigen::Map<const Eigen::VectorXd>(constraint_rates_.data() + first, rows) -
+          constraint.reference;
     } else {
       constraint.kind = RigidConstraint::Kind::kUnilateral;
     }

@@ -353,43 +353,67 @@ TEST(DeformableBody, RigidSideSolvedWithTheStepTakesTheOppositeImpulse) {
 // not touch. Held, each row k adds Newton's law with its force
 // D_k (aref_k - a_k): (m + D_k) v+_k = m v_k + p_k + D_k (v_k + dt aref_k);
 // released, v+ = v + p / m. A unilateral row is released exactly where its
-// held solution would pull (a_k - aref_k > 0); an elliptic cone contact
-// (rows z, x, y) exactly where its held solution is in the cone's top zone
-// (N >= mu T, MuJoCo's zones): pressed down and pushed within the cone, it
-// holds; struck up, it lets go; pushed sideways hard while lifted a little
-// (the cone's middle zone, where MuJoCo's force is on the cone's surface
-// and still pushes) it holds, where its normal row alone would let go.
-TEST(RigidConstraint, IsReleasedExactlyWhereItsForceWouldPull) {
+// held solution would pull (a_k - aref_k > 0). An elliptic cone contact
+// (rows z, x, y) is released exactly where its solution is in the cone's
+// top zone (N >= mu T, MuJoCo's zones), held in the bottom zone, and in
+// the middle zone slides: its force is then MuJoCo's on the cone's
+// surface, f = -d/dr 0.5 Dm (N - mu T)^2 (computed here from that formula,
+// not the step's linearization), and the solution satisfies
+// m (v+ - v) = p + dt J^T f(r(v+)). Pressed down and pushed within the
+// cone, it holds; struck up, it lets go; pushed sideways hard while lifted
+// a little (where its normal row alone would let go) and pressed and
+// pushed hard, it slides.
+TEST(RigidConstraint, IsReleasedHeldOrSlidesByItsZoneAtTheSolution) {
   auto model = Model("box:size=0.05:res=2");
   StepSettings settings;
   settings.gravity.setZero();
   settings.cg_tolerance = 1e-12;
   const double dt = settings.dt, m = 0.2, mu = 0.5, g = 9.81;
-  const Eigen::Vector3d mass(50.0, 20.0, 20.0);  // D of the rows z, x, y
+  // D of the rows z, x, y (unequal across: a sliding contact's direction
+  // turns between solutions, and its force is not linear along them)
+  const Eigen::Vector3d mass(50.0, 20.0, 5.0);
+  enum class Expect { kHeld, kReleased, kSliding };
   struct Case {
     const char* name;
     RigidConstraint::Kind kind;
     Eigen::Vector3d velocity, impulse, reference;  // x, y, z
-    bool released;
+    Expect expect;
   };
   using Kind = RigidConstraint::Kind;
   const double p = m * g * dt;
   for (const Case& c : {
-           Case{"pressed", Kind::kUnilateral, {0, 0, -0.01}, {0, 0, -p}, {0, 0, 1.0}, false},
-           Case{"lifted", Kind::kUnilateral, {0, 0, 0}, {0, 0, 2 * p}, {0, 0, 0.0}, true},
+           Case{
+               "pressed", Kind::kUnilateral, {0, 0, -0.01}, {0, 0, -p}, {0, 0, 1.0}, Expect::kHeld},
+           Case{"lifted",
+                Kind::kUnilateral,
+                {0, 0, 0},
+                {0, 0, 2 * p},
+                {0, 0, 0.0},
+                Expect::kReleased},
            Case{"pressed, pushed within the cone",
                 Kind::kEllipticCone,
                 {0.001, 0, -0.01},
                 {0.1 * p, -0.05 * p, -p},
                 {0, 0, 1.0},
-                false},
-           Case{"struck up", Kind::kEllipticCone, {0.001, 0, 0}, {0, 0, 5 * p}, {0, 0, 0}, true},
+                Expect::kHeld},
+           Case{"struck up",
+                Kind::kEllipticCone,
+                {0.001, 0, 0},
+                {0, 0, 5 * p},
+                {0, 0, 0},
+                Expect::kReleased},
            Case{"lifted a little, pushed hard",
                 Kind::kEllipticCone,
                 {0, 0, 0},
                 {2 * p, 0, 0.1 * p},
                 {0, 0, 0},
-                false},
+                Expect::kSliding},
+           Case{"pressed, pushed hard",
+                Kind::kEllipticCone,
+                {0.05, -0.02, 0},
+                {3 * p, 1 * p, -p},
+                {0, 0, 0.5},
+                Expect::kSliding},
        }) {
     SCOPED_TRACE(c.name);
     DeformableBody body(model, "cube");
@@ -417,9 +441,18 @@ TEST(RigidConstraint, IsReleasedExactlyWhereItsForceWouldPull) {
     DeformableBody* bodies[1] = {&body};
     const CoupledStepReport report = StepCoupled(bodies, contacts, {}, settings, &rigid);
     ASSERT_EQ(report.status, StepStatus::kOk);
-    EXPECT_EQ(constraint.released, c.released);
+    EXPECT_EQ(constraint.released, c.expect == Expect::kReleased);
+    EXPECT_EQ(constraint.sliding, c.expect == Expect::kSliding);
 
-    // the held and the released solutions
+    // r = a - aref per row, at a velocity w at the step's end
+    auto residual = [&](const Eigen::Vector3d& w) {
+      Eigen::Vector3d r = Eigen::Vector3d::Zero();
+      for (int k = 0; k < rows; ++k) {
+        r[k] = (w[axis[k]] - c.velocity[axis[k]]) / dt - c.reference[axis[k]];
+      }
+      return r;
+    };
+    // the held solution, and its zone: pulling (released) or not
     Eigen::Vector3d held = c.velocity + c.impulse / m;
     for (int k = 0; k < rows; ++k) {
       const int a = axis[k];
@@ -427,25 +460,35 @@ TEST(RigidConstraint, IsReleasedExactlyWhereItsForceWouldPull) {
           (m * c.velocity[a] + c.impulse[a] + mass[k] * (c.velocity[a] + dt * c.reference[a])) /
           (m + mass[k]);
     }
-    const Eigen::Vector3d expected =
-        c.released ? Eigen::Vector3d(c.velocity + c.impulse / m) : held;
-    EXPECT_LT((tree.velocity_end - expected).norm(), 1e-9 * expected.norm())
-        << tree.velocity_end.transpose() << " vs " << expected.transpose();
-    // the held solution's zone: pulling (released) or not
-    Eigen::Vector3d r = Eigen::Vector3d::Zero();  // a - aref, per row
-    for (int k = 0; k < rows; ++k) {
-      r[k] = (held[axis[k]] - c.velocity[axis[k]]) / dt - c.reference[axis[k]];
-    }
+    const Eigen::Vector3d free = c.velocity + c.impulse / m;
     if (c.kind == Kind::kUnilateral) {
-      EXPECT_EQ(r[0] > 0.0, c.released);
-    } else {
-      const double normal = mu * r[0];
-      const double tangential = mu * r.tail<2>().norm();
-      EXPECT_EQ(normal >= mu * tangential, c.released) << "the top zone";
-      if (std::string(c.name) == "lifted a little, pushed hard") {
-        EXPECT_GT(r[0], 0.0) << "its normal row alone would pull";
-        EXPECT_GT(mu * normal + tangential, 0.0) << "not in the bottom zone";
+      EXPECT_EQ(residual(held)[0] > 0.0, c.expect == Expect::kReleased);
+    }
+    const Eigen::Vector3d& end = tree.velocity_end;
+    if (c.expect != Expect::kSliding) {
+      const Eigen::Vector3d expected = c.expect == Expect::kReleased ? free : held;
+      EXPECT_LT((end - expected).norm(), 1e-9 * expected.norm())
+          << end.transpose() << " vs " << expected.transpose();
+    }
+    if (c.kind == Kind::kUnilateral) continue;
+    // the zone at the solution (MuJoCo's, with u = mu r)
+    const Eigen::Vector3d r = residual(end);
+    const double normal = mu * r[0], tangential = mu * r.tail<2>().norm();
+    EXPECT_EQ(normal >= mu * tangential, c.expect == Expect::kReleased) << "the top zone";
+    EXPECT_EQ(mu * normal + tangential <= 0.0, c.expect == Expect::kHeld) << "the bottom zone";
+    if (c.expect == Expect::kSliding) {
+      // MuJoCo's middle-zone force at r (rows z, x, y), on the axes
+      const double dm = mass[0] / (mu * mu * (1.0 + mu * mu));
+      const double gap = normal - mu * tangential;
+      Eigen::Vector3d force_on_axes = Eigen::Vector3d::Zero();
+      force_on_axes[axis[0]] = -dm * gap * mu;
+      for (int k = 1; k < 3; ++k) {
+        force_on_axes[axis[k]] = dm * gap * mu / tangential * (mu * r[k]) * mu;
       }
+      const Eigen::Vector3d newton = m * (end - c.velocity) - c.impulse - dt * force_on_axes;
+      EXPECT_LT(newton.norm(), 1e-6 * (dt * force_on_axes).norm())
+          << "Newton's law with the cone's force, of " << (dt * force_on_axes).norm();
+      EXPECT_GT(force_on_axes[2], 0.0) << "the cone's force pushes";
     }
   }
 }
