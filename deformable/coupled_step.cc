@@ -245,8 +245,12 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     RigidConstraint& constraint = rigid->constraints[k];
     constraint.switches = 0;
     hold(k);
-    if (constraint.kind != RigidConstraint::Kind::kEllipticCone ||
+    if (constraint.kind == RigidConstraint::Kind::kEquality ||
         constraint.start_residual.size() == 0) {
+      continue;
+    }
+    if (constraint.kind == RigidConstraint::Kind::kUnilateral) {
+      constraint.released = constraint.start_residual[0] > 0.0;
       continue;
     }
     const ConeZone zone = Zone(constraint, constraint.start_residual);

@@ -120,9 +120,10 @@ struct RigidConstraint {
   // kEllipticCone: per row, the scale into the cone's space: mu for the
   // normal row, then each friction row's coefficient
   Eigen::VectorXd cone;
-  // kEllipticCone: per row, J a - aref at the rigid solver's solution at
-  // the step's start, whose zone the step starts it in (and about which it
-  // starts linearized, in the middle zone); empty: the bottom zone
+  // A unilateral one's rows' J a - aref at the rigid solver's solution at
+  // the step's start, which sets the state the step starts it in: a row
+  // released where it is > 0; a cone contact in its zone, and linearized
+  // about it in the middle zone. Empty: held.
   Eigen::VectorXd start_residual;
   bool released = false;  // out: released by the step
   bool sliding = false;   // out: kEllipticCone, in the cone's middle zone

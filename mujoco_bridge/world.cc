@@ -1063,14 +1063,17 @@ int World::ConstraintRows(int row) const {
 // zone) is D_i (aref_i - J_i a) (D_i: efc_D, aref_i: its reference
 // acceleration, from the state at the step's start): the step takes such a
 // constraint on the trees it solves as a RigidConstraint (coupled_step.h),
-// in place of its solved force, unilateral but for an equality; so an
-// elliptic cone contact in its middle zone (sliding), whose force the step
-// linearizes about MuJoCo's solution (RigidConstraint::start_residual). A
-// constraint between a solved tree and one the step does not solve (a box
-// resting on another) is taken with that one held still: J on the solved
-// tree's degrees of freedom alone. The other rows (satisfied, friction
-// loss, on three trees or more) keep the force MuJoCo solved for them with
-// the last step's forces of ours.
+// in place of its solved force, unilateral but for an equality, and in the
+// state MuJoCo's solution at the step's start (with the last step's forces
+// of ours) has it in (RigidConstraint::start_residual): a satisfied row
+// released, taken back where the step's solution has it push (where this
+// step's forces of ours press a body onto a contact that last step's left
+// idle); an elliptic cone contact in its zone, its force linearized about
+// MuJoCo's solution in the middle zone (sliding). A constraint between a
+// solved tree and one the step does not solve (a box resting on another)
+// is taken with that one held still: J on the solved tree's degrees of
+// freedom alone. The other rows (friction loss, on three trees or more)
+// keep the force MuJoCo solved for them.
 void World::LinearizeConstraints(double dt) {
   const mjModel* m = model_;
   mjData* d = data_;
@@ -1081,12 +1084,7 @@ void World::LinearizeConstraints(double dt) {
   for (int first = 0, rows = 1; first < d->nefc; first += rows) {
     rows = ConstraintRows(first);
     const int type = d->efc_type[first];
-    const int state = d->efc_state[first];
-    if (!(state == mjCNSTRSTATE_QUADRATIC ||
-          (state == mjCNSTRSTATE_CONE && type == mjCNSTR_CONTACT_ELLIPTIC)) ||
-        type == mjCNSTR_FRICTION_DOF || type == mjCNSTR_FRICTION_TENDON) {
-      continue;
-    }
+    if (type == mjCNSTR_FRICTION_DOF || type == mjCNSTR_FRICTION_TENDON) continue;
     // the constraint's trees that the step solves (one or two), their
     // slots in rigid_ and their first degrees of freedom in MuJoCo's
     std::array<int, 2> slots = {-1, -1}, first_dofs = {0, 0};
@@ -1131,11 +1129,13 @@ void World::LinearizeConstraints(double dt) {
       const mjContact& contact = d->contact[d->efc_id[first]];
       constraint.cone = Eigen::VectorXd::NullaryExpr(
           rows, [&](Eigen::Index r) { return r == 0 ? contact.mu : contact.friction[r - 1]; });
+    } else {
+      constraint.kind = RigidConstraint::Kind::kUnilateral;
+    }
+    if (type != mjCNSTR_EQUALITY) {
       constraint.start_residual =
           Eigen::Map<const Eigen::VectorXd>(constraint_rates_.data() + first, rows) -
           constraint.reference;
-    } else {
-      constraint.kind = RigidConstraint::Kind::kUnilateral;
     }
   }
 }

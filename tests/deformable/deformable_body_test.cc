@@ -493,6 +493,44 @@ TEST(RigidConstraint, IsReleasedHeldOrSlidesByItsZoneAtTheSolution) {
   }
 }
 
+// A unilateral row that the rigid solver's solution at the step's start
+// left released (r > 0 there: a contact that the last step's forces left
+// idle) starts released, and is taken back where this step's solution has
+// it push: a point pressed onto it ends held, as the held solution says,
+// after one switch; a point lifted off it stays released.
+TEST(RigidConstraint, StartsAsTheRigidSolverLeftItAndIsTakenBackWhereItPushes) {
+  auto model = Model("box:size=0.05:res=2");
+  StepSettings settings;
+  settings.gravity.setZero();
+  settings.cg_tolerance = 1e-12;
+  const double dt = settings.dt, m = 0.2, D = 50.0, p = m * 9.81 * dt;
+  for (const double impulse : {-p, 2 * p}) {
+    SCOPED_TRACE(impulse);
+    DeformableBody body(model, "cube");
+    body.Reset(At({1.0, 0.0, 0.0}), Eigen::Vector3d::Zero());
+    RigidSystem rigid;
+    RigidTree& tree = rigid.trees.emplace_back();
+    tree.mass = m * Eigen::Matrix3d::Identity();
+    tree.velocity.setZero(3);
+    tree.impulse = Eigen::Vector3d(0.0, 0.0, impulse);
+    RigidConstraint& constraint = rigid.constraints.emplace_back();
+    constraint.trees = {0, -1};
+    constraint.kind = RigidConstraint::Kind::kUnilateral;
+    constraint.jacobian = Eigen::RowVector3d::UnitZ();
+    constraint.mass = Eigen::VectorXd::Constant(1, D);
+    constraint.reference = Eigen::VectorXd::Zero(1);
+    constraint.start_residual = Eigen::VectorXd::Constant(1, 1.0);  // released
+    std::vector<ContactPoint> contacts;
+    DeformableBody* bodies[1] = {&body};
+    ASSERT_EQ(StepCoupled(bodies, contacts, {}, settings, &rigid).status, StepStatus::kOk);
+    const bool pressed = impulse < 0.0;
+    EXPECT_EQ(constraint.released, !pressed);
+    EXPECT_EQ(constraint.switches, pressed ? 1 : 0);
+    const double expected = pressed ? impulse / (m + D) : impulse / m;
+    EXPECT_NEAR(tree.velocity_end.z(), expected, 1e-12);
+  }
+}
+
 // A constraint between two trees (two points of masses m1, m2, joined
 // along x by an equality row J = [e_x, -e_x] with D and aref): the step
 // keeps their total momentum but for their impulses, and their relative
