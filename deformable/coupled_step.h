@@ -86,20 +86,22 @@ struct CoupledStepReport {
 // rows is D (aref - J a), a the trees' accelerations over the step
 // (MuJoCo's constraint rows in their quadratic state, D their efc_D, aref
 // their efc_aref), so it adds J^T D J to the trees' mass (between two
-// trees, coupling them) and dt J^T D aref to their impulse. A unilateral one (a contact's, a joint
-// limit's) only pushes: where a solution has it pull, it is released (no force), as the rigid
-// solver will find it released, and taken back where it then pushes, as
-// the rigid solver's active set does (kMaxConstraintSwitches times at
-// most). (Held, a joint limit under a lid struck from below held the lid to
-// it in the prediction, and the lid took the blow of a body that had
-// stopped against it as against a heavy one.) A contact in an elliptic
-// friction cone is one constraint of its normal row and its friction rows,
-// released and taken back as one: released where a solution puts it in
-// the cone's top zone (no force: N >= mu T, with N = mu r_0 and T the norm
-// of the friction rows' r_j scaled by their coefficients, r the rows'
-// J a - aref), held otherwise: in the bottom zone (sticking) each row's
-// force is D (aref - J a) as above; in the middle zone (sliding) the force
-// lies on the cone's surface, the rigid solver's -d/dr of
+// trees, coupling them) and dt J^T D aref to their impulse. A unilateral
+// one (a contact's, a joint limit's) only pushes: it starts in the state
+// the rigid solver's solution at the step's start has it in
+// (start_residual); where a solution has it pull, it is released (no
+// force), as the rigid solver will find it released, and taken back where
+// it then pushes, as the rigid solver's active set does
+// (kMaxConstraintSwitches times at most). (Held, a joint limit under a lid
+// struck from below held the lid to it in the prediction, and the lid took
+// the blow of a body that had stopped against it as against a heavy one.)
+// A contact in an elliptic friction cone is one constraint of its normal
+// row and its friction rows, in the zone of the cone a solution puts it in
+// (with r the rows' J a - aref, N = mu r_0 and T the norm of the friction
+// rows' r_j scaled by their coefficients): released in the top zone (no
+// force: N >= mu T); in the bottom zone (sticking: mu N + T <= 0) each
+// row's force is D (aref - J a) as above; in the middle zone (sliding) the
+// force lies on the cone's surface, the rigid solver's -d/dr of
 // 0.5 Dm (N - mu T)^2 (Dm = D_0 / (mu^2 (1 + mu^2))), which is not linear:
 // the step takes it linearized about a solution, f + H (r_0 - r) with
 // H = -df/dr at r_0 (positive semidefinite: the cost is convex), and
