@@ -144,6 +144,14 @@ bool InsideFrictionCone(const Eigen::Vector3d& force, const ContactPoint& contac
   return Tangential(force, contact.direction).norm() <= FrictionLimit(force, contact);
 }
 
+// The side of a friction loss row (RigidConstraint) whose J a - aref is r:
+// -1 where its force is +friction_loss (r <= -friction_loss / D), 1 where
+// it is -friction_loss, 0 where it is D (aref - J a)
+int FrictionLossSide(const RigidConstraint& constraint, double r) {
+  const double limit = constraint.friction_loss / constraint.mass[0];
+  return r <= -limit ? -1 : (r >= limit ? 1 : 0);
+}
+
 enum class ConeZone { kBottom, kMiddle, kTop };
 
 // The zone of an elliptic cone contact (RigidConstraint) whose rows have
@@ -223,6 +231,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     Eigen::VectorXd force;    // (sliding) f_0
     Eigen::VectorXd about;    // (sliding) r_0
     int linearizations = 0;
+    int side = 0;  // (friction loss) FrictionLossSide
   };
   const size_t num_constraints = rigid != nullptr ? rigid->constraints.size() : 0;
   std::vector<ConstraintLaw> laws(num_constraints);
@@ -241,6 +250,18 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     constraint.released = false;
     constraint.sliding = true;
   };
+  // a friction loss row on `side` (FrictionLossSide): H = 0, g = dt f
+  auto slip = [&](size_t k, int side) {
+    RigidConstraint& constraint = rigid->constraints[k];
+    if (side == 0) {
+      hold(k);
+    } else {
+      laws[k].hessian.setZero(1, 1);
+      laws[k].offset = Eigen::VectorXd::Constant(1, -dt * side * constraint.friction_loss);
+      constraint.sliding = true;
+    }
+    laws[k].side = side;
+  };
   for (size_t k = 0; k < num_constraints; ++k) {
     RigidConstraint& constraint = rigid->constraints[k];
     constraint.switches = 0;
@@ -251,6 +272,10 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     }
     if (constraint.kind == RigidConstraint::Kind::kUnilateral) {
       constraint.released = constraint.start_residual[0] > 0.0;
+      continue;
+    }
+    if (constraint.kind == RigidConstraint::Kind::kFrictionLoss) {
+      slip(k, FrictionLossSide(constraint, constraint.start_residual[0]));
       continue;
     }
     const ConeZone zone = Zone(constraint, constraint.start_residual);
@@ -855,6 +880,15 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
         const bool pushes = pull[0] >= 0.0;
         if (pushes == constraint.released && may_switch) {
           constraint.released = !pushes;
+          ++constraint.switches;
+          changed = true;
+        }
+        continue;
+      }
+      if (constraint.kind == RigidConstraint::Kind::kFrictionLoss) {
+        const int side = FrictionLossSide(constraint, -pull[0] / dt);
+        if (side != laws[k].side && may_switch) {
+          slip(k, side);
           ++constraint.switches;
           changed = true;
         }

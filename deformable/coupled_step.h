@@ -107,9 +107,12 @@ struct CoupledStepReport {
 // H = -df/dr at r_0 (positive semidefinite: the cost is convex), and
 // linearizes it again about each solution whose force differs from that
 // line's by more than kConeForceTolerance (Newton's method over the
-// rounds, kMaxConeLinearizations times at most).
+// rounds, kMaxConeLinearizations times at most). A friction loss row (a
+// joint's or tendon's dry friction) pushes either way: D (aref - J a)
+// while |r| < friction_loss / D, else friction_loss against r (sliding, a
+// constant force), switched as a solution moves it between the three.
 struct RigidConstraint {
-  enum class Kind { kEquality, kUnilateral, kEllipticCone };
+  enum class Kind { kEquality, kUnilateral, kEllipticCone, kFrictionLoss };
   // the trees it acts on (RigidSystem::trees): trees[1] < 0 for one
   std::array<int, 2> trees = {-1, -1};
   // rows x (n_0 + n_1): J, the rates of its rows from the velocities of
@@ -122,14 +125,18 @@ struct RigidConstraint {
   // kEllipticCone: per row, the scale into the cone's space: mu for the
   // normal row, then each friction row's coefficient
   Eigen::VectorXd cone;
+  double friction_loss = 0.0;  // kFrictionLoss: the most force it exerts
   // A unilateral one's rows' J a - aref at the rigid solver's solution at
   // the step's start, which sets the state the step starts it in: a row
   // released where it is > 0; a cone contact in its zone, and linearized
-  // about it in the middle zone. Empty: held.
+  // about it in the middle zone; a friction loss row in its state. Empty:
+  // held.
   Eigen::VectorXd start_residual;
   bool released = false;  // out: released by the step
-  bool sliding = false;   // out: kEllipticCone, in the cone's middle zone
-  int switches = 0;       // out: how often the step released it or took it back
+  // out: kEllipticCone in the cone's middle zone, kFrictionLoss at its
+  // constant force
+  bool sliding = false;
+  int switches = 0;  // out: how often the step released it or took it back
 };
 // The most rows a RigidConstraint has (an elliptic cone contact's, condim 6)
 inline constexpr int kMaxConstraintRows = 6;

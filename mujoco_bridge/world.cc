@@ -1069,11 +1069,12 @@ int World::ConstraintRows(int row) const {
 // released, taken back where the step's solution has it push (where this
 // step's forces of ours press a body onto a contact that last step's left
 // idle); an elliptic cone contact in its zone, its force linearized about
-// MuJoCo's solution in the middle zone (sliding). A constraint between a
-// solved tree and one the step does not solve (a box resting on another)
-// is taken with that one held still: J on the solved tree's degrees of
-// freedom alone. The other rows (friction loss, on three trees or more)
-// keep the force MuJoCo solved for them.
+// MuJoCo's solution in the middle zone (sliding); a friction loss row in
+// its state (quadratic, or its constant force either way). A constraint
+// between a solved tree and one the step does not solve (a box resting on
+// another) is taken with that one held still: J on the solved tree's
+// degrees of freedom alone. Rows on three trees or more keep the force
+// MuJoCo solved for them.
 void World::LinearizeConstraints(double dt) {
   const mjModel* m = model_;
   mjData* d = data_;
@@ -1084,7 +1085,6 @@ void World::LinearizeConstraints(double dt) {
   for (int first = 0, rows = 1; first < d->nefc; first += rows) {
     rows = ConstraintRows(first);
     const int type = d->efc_type[first];
-    if (type == mjCNSTR_FRICTION_DOF || type == mjCNSTR_FRICTION_TENDON) continue;
     // the constraint's trees that the step solves (one or two), their
     // slots in rigid_ and their first degrees of freedom in MuJoCo's
     std::array<int, 2> slots = {-1, -1}, first_dofs = {0, 0};
@@ -1129,6 +1129,9 @@ void World::LinearizeConstraints(double dt) {
       const mjContact& contact = d->contact[d->efc_id[first]];
       constraint.cone = Eigen::VectorXd::NullaryExpr(
           rows, [&](Eigen::Index r) { return r == 0 ? contact.mu : contact.friction[r - 1]; });
+    } else if (type == mjCNSTR_FRICTION_DOF || type == mjCNSTR_FRICTION_TENDON) {
+      constraint.kind = RigidConstraint::Kind::kFrictionLoss;
+      constraint.friction_loss = d->efc_frictionloss[first];
     } else {
       constraint.kind = RigidConstraint::Kind::kUnilateral;
     }

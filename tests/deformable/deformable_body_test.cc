@@ -531,6 +531,45 @@ TEST(RigidConstraint, StartsAsTheRigidSolverLeftItAndIsTakenBackWhereItPushes) {
   }
 }
 
+// A friction loss row on a point's x (its force D (aref - a) while |a -
+// aref| < F / D, else F against it, MuJoCo's): pushed gently, the point is
+// held as the quadratic law says; pushed hard either way, it slides with
+// the constant force F against the push, v+ = v + (p -+ dt F) / m.
+TEST(RigidConstraint, FrictionLossHoldsUpToItsForceThenSlides) {
+  auto model = Model("box:size=0.05:res=2");
+  StepSettings settings;
+  settings.gravity.setZero();
+  settings.cg_tolerance = 1e-12;
+  const double dt = settings.dt, m = 0.2, D = 50.0, F = 0.5;
+  for (const double push : {0.2, 2.0, -2.0}) {  // N, along x
+    SCOPED_TRACE(push);
+    DeformableBody body(model, "cube");
+    body.Reset(At({1.0, 0.0, 0.0}), Eigen::Vector3d::Zero());
+    RigidSystem rigid;
+    RigidTree& tree = rigid.trees.emplace_back();
+    tree.mass = m * Eigen::Matrix3d::Identity();
+    tree.velocity.setZero(3);
+    tree.impulse = Eigen::Vector3d(dt * push, 0.0, 0.0);
+    RigidConstraint& constraint = rigid.constraints.emplace_back();
+    constraint.trees = {0, -1};
+    constraint.kind = RigidConstraint::Kind::kFrictionLoss;
+    constraint.friction_loss = F;
+    constraint.jacobian = Eigen::RowVector3d::UnitX();
+    constraint.mass = Eigen::VectorXd::Constant(1, D);
+    constraint.reference = Eigen::VectorXd::Zero(1);
+    constraint.start_residual = Eigen::VectorXd::Zero(1);  // held
+    std::vector<ContactPoint> contacts;
+    DeformableBody* bodies[1] = {&body};
+    ASSERT_EQ(StepCoupled(bodies, contacts, {}, settings, &rigid).status, StepStatus::kOk);
+    const double held = dt * push / (m + D);  // (m + D) v+ = p
+    const bool slides = std::abs(D * held / dt) > F;
+    EXPECT_EQ(constraint.sliding, slides);
+    EXPECT_EQ(std::abs(push) > 1.0, slides) << "(the gentle push is held)";
+    const double expected = slides ? dt * (push - std::copysign(F, push)) / m : held;
+    EXPECT_NEAR(tree.velocity_end.x(), expected, 1e-12);
+  }
+}
+
 // A constraint between two trees (two points of masses m1, m2, joined
 // along x by an equality row J = [e_x, -e_x] with D and aref): the step
 // keeps their total momentum but for their impulses, and their relative
