@@ -11,6 +11,7 @@
 #include <span>
 #include <string>
 #include <tuple>
+#include <utility>
 #include <vector>
 
 #include "collision/penetration.h"
@@ -493,41 +494,61 @@ TEST(RigidConstraint, IsReleasedHeldOrSlidesByItsZoneAtTheSolution) {
   }
 }
 
+// A point of mass m (a rigid tree of its three velocities) with one
+// constraint (trees {0, -1}), stepped from `velocity` under `impulse` beside
+// a cube it does not touch, without gravity: the constraint as the step
+// left it and the point's velocity at the step's end
+std::pair<RigidConstraint, Eigen::Vector3d> StepPoint(double m, const Eigen::Vector3d& velocity,
+                                                      const Eigen::Vector3d& impulse,
+                                                      const RigidConstraint& constraint,
+                                                      const StepSettings& settings) {
+  auto model = Model("box:size=0.05:res=2");
+  DeformableBody body(model, "cube");
+  body.Reset(At({1.0, 0.0, 0.0}), Eigen::Vector3d::Zero());
+  RigidSystem rigid;
+  RigidTree& tree = rigid.trees.emplace_back();
+  tree.mass = m * Eigen::Matrix3d::Identity();
+  tree.velocity = velocity;
+  tree.impulse = impulse;
+  rigid.constraints.push_back(constraint);
+  rigid.constraints[0].trees = {0, -1};
+  std::vector<ContactPoint> contacts;
+  DeformableBody* bodies[1] = {&body};
+  EXPECT_EQ(StepCoupled(bodies, contacts, {}, settings, &rigid).status, StepStatus::kOk);
+  return {rigid.constraints[0], tree.velocity_end};
+}
+
+// A row of `kind` along `axis` with D and aref = 0
+RigidConstraint OneRow(RigidConstraint::Kind kind, const Eigen::Vector3d& axis, double D) {
+  RigidConstraint constraint;
+  constraint.kind = kind;
+  constraint.jacobian = axis.transpose();
+  constraint.mass = Eigen::VectorXd::Constant(1, D);
+  constraint.reference = Eigen::VectorXd::Zero(1);
+  return constraint;
+}
+
 // A unilateral row that the rigid solver's solution at the step's start
 // left released (r > 0 there: a contact that the last step's forces left
 // idle) starts released, and is taken back where this step's solution has
 // it push: a point pressed onto it ends held, as the held solution says,
 // after one switch; a point lifted off it stays released.
 TEST(RigidConstraint, StartsAsTheRigidSolverLeftItAndIsTakenBackWhereItPushes) {
-  auto model = Model("box:size=0.05:res=2");
   StepSettings settings;
   settings.gravity.setZero();
   settings.cg_tolerance = 1e-12;
   const double dt = settings.dt, m = 0.2, D = 50.0, p = m * 9.81 * dt;
   for (const double impulse : {-p, 2 * p}) {
     SCOPED_TRACE(impulse);
-    DeformableBody body(model, "cube");
-    body.Reset(At({1.0, 0.0, 0.0}), Eigen::Vector3d::Zero());
-    RigidSystem rigid;
-    RigidTree& tree = rigid.trees.emplace_back();
-    tree.mass = m * Eigen::Matrix3d::Identity();
-    tree.velocity.setZero(3);
-    tree.impulse = Eigen::Vector3d(0.0, 0.0, impulse);
-    RigidConstraint& constraint = rigid.constraints.emplace_back();
-    constraint.trees = {0, -1};
-    constraint.kind = RigidConstraint::Kind::kUnilateral;
-    constraint.jacobian = Eigen::RowVector3d::UnitZ();
-    constraint.mass = Eigen::VectorXd::Constant(1, D);
-    constraint.reference = Eigen::VectorXd::Zero(1);
-    constraint.start_residual = Eigen::VectorXd::Constant(1, 1.0);  // released
-    std::vector<ContactPoint> contacts;
-    DeformableBody* bodies[1] = {&body};
-    ASSERT_EQ(StepCoupled(bodies, contacts, {}, settings, &rigid).status, StepStatus::kOk);
+    RigidConstraint row = OneRow(RigidConstraint::Kind::kUnilateral, Eigen::Vector3d::UnitZ(), D);
+    row.start_residual = Eigen::VectorXd::Constant(1, 1.0);  // released
+    const auto [constraint, end] =
+        StepPoint(m, Eigen::Vector3d::Zero(), Eigen::Vector3d(0.0, 0.0, impulse), row, settings);
     const bool pressed = impulse < 0.0;
     EXPECT_EQ(constraint.released, !pressed);
     EXPECT_EQ(constraint.switches, pressed ? 1 : 0);
     const double expected = pressed ? impulse / (m + D) : impulse / m;
-    EXPECT_NEAR(tree.velocity_end.z(), expected, 1e-12);
+    EXPECT_NEAR(end.z(), expected, 1e-12);
   }
 }
 
@@ -536,37 +557,23 @@ TEST(RigidConstraint, StartsAsTheRigidSolverLeftItAndIsTakenBackWhereItPushes) {
 // held as the quadratic law says; pushed hard either way, it slides with
 // the constant force F against the push, v+ = v + (p -+ dt F) / m.
 TEST(RigidConstraint, FrictionLossHoldsUpToItsForceThenSlides) {
-  auto model = Model("box:size=0.05:res=2");
   StepSettings settings;
   settings.gravity.setZero();
   settings.cg_tolerance = 1e-12;
   const double dt = settings.dt, m = 0.2, D = 50.0, F = 0.5;
   for (const double push : {0.2, 2.0, -2.0}) {  // N, along x
     SCOPED_TRACE(push);
-    DeformableBody body(model, "cube");
-    body.Reset(At({1.0, 0.0, 0.0}), Eigen::Vector3d::Zero());
-    RigidSystem rigid;
-    RigidTree& tree = rigid.trees.emplace_back();
-    tree.mass = m * Eigen::Matrix3d::Identity();
-    tree.velocity.setZero(3);
-    tree.impulse = Eigen::Vector3d(dt * push, 0.0, 0.0);
-    RigidConstraint& constraint = rigid.constraints.emplace_back();
-    constraint.trees = {0, -1};
-    constraint.kind = RigidConstraint::Kind::kFrictionLoss;
-    constraint.friction_loss = F;
-    constraint.jacobian = Eigen::RowVector3d::UnitX();
-    constraint.mass = Eigen::VectorXd::Constant(1, D);
-    constraint.reference = Eigen::VectorXd::Zero(1);
-    constraint.start_residual = Eigen::VectorXd::Zero(1);  // held
-    std::vector<ContactPoint> contacts;
-    DeformableBody* bodies[1] = {&body};
-    ASSERT_EQ(StepCoupled(bodies, contacts, {}, settings, &rigid).status, StepStatus::kOk);
+    RigidConstraint row = OneRow(RigidConstraint::Kind::kFrictionLoss, Eigen::Vector3d::UnitX(), D);
+    row.friction_loss = F;
+    row.start_residual = Eigen::VectorXd::Zero(1);  // held
+    const auto [constraint, end] =
+        StepPoint(m, Eigen::Vector3d::Zero(), Eigen::Vector3d(dt * push, 0.0, 0.0), row, settings);
     const double held = dt * push / (m + D);  // (m + D) v+ = p
     const bool slides = std::abs(D * held / dt) > F;
     EXPECT_EQ(constraint.sliding, slides);
     EXPECT_EQ(std::abs(push) > 1.0, slides) << "(the gentle push is held)";
     const double expected = slides ? dt * (push - std::copysign(F, push)) / m : held;
-    EXPECT_NEAR(tree.velocity_end.x(), expected, 1e-12);
+    EXPECT_NEAR(end.x(), expected, 1e-12);
   }
 }
 
