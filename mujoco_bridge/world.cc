@@ -1013,6 +1013,9 @@ void World::FindOtherForces() {
     mj_fwdAcceleration(m, d);
     mj_fwdConstraint(m, d);
     row_trees_.assign(static_cast<size_t>(d->nefc), {-1, -1});
+    // J qacc, each row's rate at MuJoCo's solution
+    constraint_rates_.resize(static_cast<size_t>(d->nefc));
+    mj_mulJacVec(m, d, constraint_rates_.data(), d->qacc);
     const bool sparse = mj_isSparse(m) != 0;
     for (int first = 0, rows = 1; first < d->nefc; first += rows) {
       rows = ConstraintRows(first);
@@ -1077,11 +1080,8 @@ int World::ConstraintRows(int row) const {
 // MuJoCo solved for them.
 void World::LinearizeConstraints(double dt) {
   const mjModel* m = model_;
-  mjData* d = data_;
+  const mjData* d = data_;
   const bool sparse = mj_isSparse(m) != 0;
-  // J qacc, each row's rate at MuJoCo's solution
-  constraint_rates_.resize(static_cast<size_t>(d->nefc));
-  mj_mulJacVec(m, d, constraint_rates_.data(), d->qacc);
   for (int first = 0, rows = 1; first < d->nefc; first += rows) {
     rows = ConstraintRows(first);
     const int type = d->efc_type[first];

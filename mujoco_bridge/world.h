@@ -338,7 +338,8 @@ class World {
   // or more), at its first row (ConstraintRows; FindOtherForces, with the
   // rows linearized)
   std::vector<std::array<int, 2>> row_trees_;
-  std::vector<double> constraint_rates_;  // nefc: J qacc (LinearizeConstraints)
+  // nefc: J qacc, each row's rate at MuJoCo's solution (FindOtherForces)
+  std::vector<double> constraint_rates_;
   // nv: the generalized velocities a substep's trees start at: MuJoCo's at
   // the step's start, each tree's as the last substep that solved it
   // predicted (MuJoCo steps once, after the substeps: its velocities stay
