@@ -195,6 +195,29 @@ void MiddleZoneForce(const RigidConstraint& constraint, const Eigen::VectorXd& r
   hessian = scale.asDiagonal() * second * scale.asDiagonal();
 }
 
+// The state a RigidConstraint's rows' J a - aref = r put it in: released,
+// held, or sliding (an elliptic cone contact in its middle zone: 1; a
+// friction loss row at its constant force: its FrictionLossSide)
+struct ConstraintState {
+  bool released = false;
+  int sliding = 0;
+  bool operator==(const ConstraintState&) const = default;
+};
+ConstraintState StateAt(const RigidConstraint& constraint, const Eigen::VectorXd& r) {
+  switch (constraint.kind) {
+    case RigidConstraint::Kind::kEquality:
+      return {};
+    case RigidConstraint::Kind::kUnilateral:
+      return {.released = r[0] > 0.0};
+    case RigidConstraint::Kind::kFrictionLoss:
+      return {.sliding = FrictionLossSide(constraint, r[0])};
+    case RigidConstraint::Kind::kEllipticCone:
+      break;
+  }
+  const ConeZone zone = Zone(constraint, r);
+  return {.released = zone == ConeZone::kTop, .sliding = zone == ConeZone::kMiddle ? 1 : 0};
+}
+
 }  // namespace
 
 CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
@@ -231,7 +254,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     Eigen::VectorXd force;    // (sliding) f_0
     Eigen::VectorXd about;    // (sliding) r_0
     int linearizations = 0;
-    int side = 0;  // (friction loss) FrictionLossSide
+    ConstraintState state;
   };
   const size_t num_constraints = rigid != nullptr ? rigid->constraints.size() : 0;
   std::vector<ConstraintLaw> laws(num_constraints);
@@ -247,40 +270,31 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     MiddleZoneForce(constraint, r, law.force, law.hessian);
     law.offset = dt * (law.force + law.hessian * r);
     law.about = r;
-    constraint.released = false;
-    constraint.sliding = true;
   };
-  // a friction loss row on `side` (FrictionLossSide): H = 0, g = dt f
-  auto slip = [&](size_t k, int side) {
+  // constraint k in `state` at r (StateAt): released; held; sliding, a
+  // friction loss row with H = 0, g = dt f, a cone linearized about r
+  auto enter = [&](size_t k, ConstraintState state, const Eigen::VectorXd& r) {
     RigidConstraint& constraint = rigid->constraints[k];
-    if (side == 0) {
-      hold(k);
-    } else {
+    hold(k);
+    if (constraint.kind == RigidConstraint::Kind::kFrictionLoss && state.sliding != 0) {
       laws[k].hessian.setZero(1, 1);
-      laws[k].offset = Eigen::VectorXd::Constant(1, -dt * side * constraint.friction_loss);
-      constraint.sliding = true;
+      laws[k].offset = Eigen::VectorXd::Constant(1, -dt * state.sliding * constraint.friction_loss);
+    } else if (state.sliding != 0) {
+      slide_about(k, r);
     }
-    laws[k].side = side;
+    constraint.released = state.released;
+    constraint.sliding = state.sliding != 0;
+    laws[k].state = state;
   };
   for (size_t k = 0; k < num_constraints; ++k) {
     RigidConstraint& constraint = rigid->constraints[k];
     constraint.switches = 0;
     hold(k);
-    if (constraint.kind == RigidConstraint::Kind::kEquality ||
-        constraint.start_residual.size() == 0) {
-      continue;
+    laws[k].state = {};
+    if (constraint.kind != RigidConstraint::Kind::kEquality &&
+        constraint.start_residual.size() > 0) {
+      enter(k, StateAt(constraint, constraint.start_residual), constraint.start_residual);
     }
-    if (constraint.kind == RigidConstraint::Kind::kUnilateral) {
-      constraint.released = constraint.start_residual[0] > 0.0;
-      continue;
-    }
-    if (constraint.kind == RigidConstraint::Kind::kFrictionLoss) {
-      slip(k, FrictionLossSide(constraint, constraint.start_residual[0]));
-      continue;
-    }
-    const ConeZone zone = Zone(constraint, constraint.start_residual);
-    if (zone == ConeZone::kMiddle) slide_about(k, constraint.start_residual);
-    constraint.released = zone == ConeZone::kTop;
   }
   // J_i x for row i of a constraint, with part(t) tree t's share of x;
   // y += s J_i^T
@@ -858,9 +872,10 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     }
     // the trees' unilateral constraints whose state this solution changes:
     // held rows that pull, released ones that push, elliptic cone contacts
-    // in another zone (the rigid solver's active set; switched at most
-    // kMaxConstraintSwitches times, so that the rounds end), and sliding
-    // ones whose force here is off their linearized one
+    // in another zone, friction loss rows on another side (StateAt; the
+    // rigid solver's active set; switched at most kMaxConstraintSwitches
+    // times, so that the rounds end), and sliding cones whose force here is
+    // off their linearized one
     // (each tree's velocity change over the step, with the sign flipped)
     auto change = [&](int t) {
       return rigid->trees[t].velocity -
@@ -869,49 +884,22 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     for (size_t k = 0; k < num_constraints; ++k) {
       RigidConstraint& constraint = rigid->constraints[k];
       if (constraint.kind == RigidConstraint::Kind::kEquality) continue;
-      // -dt r, with r = J a - aref
+      // r = J a - aref
       const Eigen::Index rows = constraint.jacobian.rows();
-      Eigen::VectorXd pull(rows);
+      Eigen::VectorXd residual(rows);
       for (Eigen::Index i = 0; i < rows; ++i) {
-        pull[i] = constraint_rate(constraint, i, change) + dt * constraint.reference[i];
+        residual[i] = -(constraint_rate(constraint, i, change) + dt * constraint.reference[i]) / dt;
       }
-      const bool may_switch = constraint.switches < kMaxConstraintSwitches;
-      if (constraint.kind == RigidConstraint::Kind::kUnilateral) {
-        const bool pushes = pull[0] >= 0.0;
-        if (pushes == constraint.released && may_switch) {
-          constraint.released = !pushes;
-          ++constraint.switches;
-          changed = true;
-        }
-        continue;
-      }
-      if (constraint.kind == RigidConstraint::Kind::kFrictionLoss) {
-        const int side = FrictionLossSide(constraint, -pull[0] / dt);
-        if (side != laws[k].side && may_switch) {
-          slip(k, side);
-          ++constraint.switches;
-          changed = true;
-        }
-        continue;
-      }
-      const Eigen::VectorXd residual = -pull / dt;
-      const ConeZone zone = Zone(constraint, residual);
-      const ConeZone state = constraint.released  ? ConeZone::kTop
-                             : constraint.sliding ? ConeZone::kMiddle
-                                                  : ConeZone::kBottom;
-      if (zone != state && may_switch) {
-        if (zone == ConeZone::kTop) {
-          constraint.released = true;
-          constraint.sliding = false;
-        } else if (zone == ConeZone::kBottom) {
-          hold(k);
-        } else {
-          slide_about(k, residual);
-        }
+      const ConstraintState state = StateAt(constraint, residual);
+      if (state != laws[k].state && constraint.switches < kMaxConstraintSwitches) {
+        enter(k, state, residual);
         ++constraint.switches;
         changed = true;
-      } else if (zone == ConeZone::kMiddle && state == ConeZone::kMiddle &&
+      } else if (state == laws[k].state && constraint.sliding &&
+                 constraint.kind == RigidConstraint::Kind::kEllipticCone &&
                  laws[k].linearizations < kMaxConeLinearizations) {
+        // (Newton's method: again about this solution where its force is
+        // off the line)
         Eigen::VectorXd force;
         Eigen::MatrixXd hessian;
         MiddleZoneForce(constraint, residual, force, hessian);
