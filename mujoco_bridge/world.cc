@@ -30,6 +30,19 @@
 namespace tetcosim {
 namespace {
 
+// MuJoCo's implicit step, with an actuator whose force changes with its
+// velocity (an affine gain or bias with a velocity term: World::TreeMass)
+bool ActuatorsDamp(const mjModel* m) {
+  if (m->opt.integrator != mjINT_IMPLICIT) return false;
+  for (int a = 0; a < m->nu; ++a) {
+    if ((m->actuator_gaintype[a] == mjGAIN_AFFINE && m->actuator_gainprm[mjNGAIN * a + 2] != 0.0) ||
+        (m->actuator_biastype[a] == mjBIAS_AFFINE && m->actuator_biasprm[mjNBIAS * a + 2] != 0.0)) {
+      return true;
+    }
+  }
+  return false;
+}
+
 // MuJoCo's matrices are row-major: xmat, ximat, geom_xmat (3 x 3) and the
 // Jacobians of mj_jac and mj_jacBody (3 x nv)
 using MjRotation = Eigen::Matrix<double, 3, 3, Eigen::RowMajor>;
@@ -792,8 +805,11 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
   // depth first: a tree's are consecutive), by the tree's root body
   world->tree_first_dof_.assign(m->nbody, -1);
   world->tree_num_dofs_.assign(m->nbody, 0);
+  world->tree_damped_.assign(m->nbody, 0);
+  world->actuators_damp_ = ActuatorsDamp(m);
   for (int dof = 0; dof < m->nv; ++dof) {
     const int root = m->body_rootid[m->dof_bodyid[dof]];
+    if (m->dof_damping[dof] > 0.0 || world->actuators_damp_) world->tree_damped_[root] = 1;
     if (world->tree_first_dof_[root] < 0) world->tree_first_dof_[root] = dof;
     if (world->tree_first_dof_[root] + world->tree_num_dofs_[root] != dof) {
       throw Error(scene_path + ": MuJoCo's degrees of freedom of the tree of body '" +
@@ -1140,20 +1156,127 @@ void World::LinearizeConstraints(double dt) {
           Eigen::Map<const Eigen::VectorXd>(constraint_rates_.data() + first, rows) -
           constraint.reference;
     }
+    if (tree_damped_[rigid_roots_[static_cast<size_t>(slots[0])]] ||
+        (num_solved == 2 && tree_damped_[rigid_roots_[static_cast<size_t>(slots[1])]])) {
+      ScaleForDamping(&constraint);
+    }
   }
 }
 
+// MuJoCo solves a constraint's force from the acceleration a = M^-1 (f +
+// J^T force) and then integrates with the damping implicitly: the velocity
+// change u = h (M + h B)^-1 M a, so J a = J M^-1 (M + h B) u / h, not the
+// J u / h the step's law takes (RigidConstraint). The step takes J a as
+// tau J u / h, tau the ratio of the constraint's J M^-1 J^T to its J (M +
+// h B)^-1 J^T (traces over its rows): exact for a constraint's own
+// response, and for any on a tree of one degree of freedom. Multiplied into
+// the law, tau would make it non-symmetric; the constraint is given
+// instead rows sqrt(tau) J, references aref / sqrt(tau), and so forces (its
+// friction loss, its start residual) divided by sqrt(tau), which is the same
+// law on the same J^T force (the laws' forces are of degree one in J a -
+// aref, the cone's zones of degree zero), and symmetric.
+void World::ScaleForDamping(RigidConstraint* constraint) const {
+  double undamped = 0.0, damped = 0.0;  // tr(J M^-1 J^T), tr(J (M + h B)^-1 J^T)
+  int column = 0;
+  for (const int slot : constraint->trees) {
+    if (slot < 0) continue;
+    const RigidTree& tree = rigid_.trees[static_cast<size_t>(slot)];
+    const int root = rigid_roots_[static_cast<size_t>(slot)];
+    const int size = tree_num_dofs_[root];
+    const Eigen::MatrixXd jacobian = constraint->jacobian.middleCols(column, size);
+    column += size;
+    const Eigen::MatrixXd transposed = jacobian.transpose();
+    undamped += (jacobian * MassBlock(root).ldlt().solve(transposed)).trace();
+    damped += (jacobian * tree.mass.ldlt().solve(transposed)).trace();
+  }
+  if (!(damped > 0.0)) return;
+  const double root_tau = std::sqrt(undamped / damped);
+  constraint->jacobian *= root_tau;
+  constraint->reference /= root_tau;
+  constraint->friction_loss /= root_tau;
+  if (constraint->start_residual.size() > 0) constraint->start_residual /= root_tau;
+}
+
+// The tree's block of MuJoCo's sparse qM, which holds, in row i, M(i, i),
+// then M(i, j) for j = i's parent DoF, its parent, ...
+Eigen::MatrixXd World::MassBlock(int root) const {
+  const mjModel* m = model_;
+  const int first = tree_first_dof_[root];
+  const int size = tree_num_dofs_[root];
+  Eigen::MatrixXd mass = Eigen::MatrixXd::Zero(size, size);
+  for (int i = first; i < first + size; ++i) {
+    int address = m->dof_Madr[i];
+    for (int j = i; j >= 0; j = m->dof_parentid[j]) {
+      mass(i - first, j - first) = mass(j - first, i - first) = data_->qM[address++];
+    }
+  }
+  return mass;
+}
+
+// MuJoCo's Euler step (and its implicit one) integrates a tree's velocities
+// v with its joints' damping B implicitly: (M + h B) (v' - v) = h f, f the
+// forces with the damping's -B v at the step's start (h: the time step).
+// Its implicit step takes so the actuators' forces' rates with their
+// velocities too (a velocity servo's -kv): M + h B - h sum_a r_a m_a m_a^T,
+// m_a the actuator's moment arms, r_a its rate (taken where < 0, as a
+// damping). The substeps take h, not their own, so that (their mean force
+// being MuJoCo's) the velocities they reach are the ones MuJoCo's step
+// reaches.
+Eigen::MatrixXd World::TreeMass(int root) const {
+  const mjModel* m = model_;
+  const int first = tree_first_dof_[root];
+  const int size = tree_num_dofs_[root];
+  Eigen::MatrixXd mass = MassBlock(root);
+  for (int i = 0; i < size; ++i) mass(i, i) += m->opt.timestep * m->dof_damping[first + i];
+  if (actuators_damp_) {
+    for (int a = 0; a < m->nu; ++a) {
+      const double rate = ActuatorForceRate(a);
+      if (!(rate < 0.0)) continue;
+      const Eigen::Map<const Eigen::VectorXd> arms(data_->actuator_moment + a * m->nv + first,
+                                                   size);
+      mass.noalias() -= m->opt.timestep * rate * arms * arms.transpose();
+    }
+  }
+  return mass;
+}
+
+// d force / d velocity of actuator a, as MuJoCo's implicit step takes it:
+// its affine bias's velocity term, and its affine gain's times the input:
+// the actuator's activation, or its control as given (MuJoCo 2.2.2's rate
+// takes it unclamped, though the force takes it clamped to its range: with
+// a control of 0.8 beyond a range up to 0.5, the clamped one left the
+// prediction 0.3 rad/s off)
+double World::ActuatorForceRate(int a) const {
+  const mjModel* m = model_;
+  double rate = 0.0;
+  if (m->actuator_biastype[a] == mjBIAS_AFFINE) rate += m->actuator_biasprm[mjNBIAS * a + 2];
+  if (m->actuator_gaintype[a] == mjGAIN_AFFINE) {
+    const double input =
+        m->actuator_dyntype[a] == mjDYN_NONE ? data_->ctrl[a] : data_->act[a - (m->nu - m->na)];
+    rate += m->actuator_gainprm[mjNGAIN * a + 2] * input;
+  }
+  return rate;
+}
+
 // Between substeps, the trees this substep did not solve move on under the
-// forces besides ours, M^-1 (once a step: MuJoCo's factorization of M is
-// that of the step's start, as is its own step's), so that a tree solved
-// in a later substep starts where MuJoCo, stepped once with the substeps'
-// mean force, will have it.
+// forces besides ours, (M + h B)^-1 (once a step: MuJoCo's M is that of the
+// step's start, as is its own step's), so that a tree solved in a later
+// substep starts where MuJoCo, stepped once with the substeps' mean force,
+// will have it.
 void World::AdvanceUnsolvedTrees(double dt) {
   const mjModel* m = model_;
   FindOtherForces();
   if (!free_acceleration_ready_) {
     free_acceleration_.resize(m->nv);
     mj_solveM(m, data_, free_acceleration_.data(), other_forces_.data(), 1);
+    for (int root = 1; root < m->nbody; ++root) {
+      if (!tree_damped_[root] || m->body_rootid[root] != root) continue;
+      const int first = tree_first_dof_[root];
+      const int size = tree_num_dofs_[root];
+      Eigen::Map<Eigen::VectorXd>(free_acceleration_.data() + first, size) =
+          TreeMass(root).ldlt().solve(
+              Eigen::Map<const Eigen::VectorXd>(other_forces_.data() + first, size));
+    }
     free_acceleration_ready_ = true;
   }
   for (int root = 1; root < m->nbody; ++root) {
@@ -1196,15 +1319,7 @@ void World::BuildRigidSystem(double dt) {
       tree_slot_[root] = static_cast<int>(rigid_.trees.size());
       rigid_roots_.push_back(root);
       RigidTree& tree = rigid_.trees.emplace_back();
-      // the tree's block of the mass matrix from MuJoCo's sparse qM: row i
-      // holds M(i, i), then M(i, j) for j = i's parent DoF, its parent, ...
-      tree.mass.setZero(size, size);
-      for (int i = first; i < first + size; ++i) {
-        int address = m->dof_Madr[i];
-        for (int j = i; j >= 0; j = m->dof_parentid[j]) {
-          tree.mass(i - first, j - first) = tree.mass(j - first, i - first) = d->qM[address++];
-        }
-      }
+      tree.mass = TreeMass(root);
       tree.velocity = Eigen::Map<const Eigen::VectorXd>(substep_velocity_.data() + first, size);
       tree.impulse = dt * Eigen::Map<const Eigen::VectorXd>(other_forces_.data() + first, size);
     }

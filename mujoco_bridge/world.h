@@ -252,10 +252,20 @@ class World {
   // their active set, as their RigidConstraints (once every tree of the
   // system is in: tree_slot_ tells which are)
   void LinearizeConstraints(double dt);
+  // the constraint's rows and forces scaled for the damping MuJoCo's step
+  // takes implicitly on its trees (TreeMass)
+  void ScaleForDamping(RigidConstraint* constraint) const;
   // the rows of the constraint whose first row is `row`: an elliptic cone
   // contact's dim, else 1
   int ConstraintRows(int row) const;
-  void AdvanceUnsolvedTrees(double dt);  // (substeps)
+  void AdvanceUnsolvedTrees(double dt);       // (substeps)
+  Eigen::MatrixXd MassBlock(int root) const;  // the tree's block of M
+  // The tree's block of the matrix MuJoCo's step integrates its velocities
+  // with: M plus the time step times the joints' damping, which its Euler
+  // (and implicit) integrator takes implicitly, and (implicit) the
+  // actuators' rates with their velocities
+  Eigen::MatrixXd TreeMass(int root) const;
+  double ActuatorForceRate(int actuator) const;
   void AddRigidForce(int body, const Eigen::Vector3d& point, const Eigen::Vector3d& force);
   // The MuJoCo body that pin `pin` of deformable `deformable` follows, or
   // -1 (a fixed pin).
@@ -329,6 +339,9 @@ class World {
   // trees in the rigid system (BuildRigidSystem) and each root's slot among them
   std::vector<int> tree_first_dof_;
   std::vector<int> tree_num_dofs_;
+  // per root body: MuJoCo's step takes more than M for its tree (TreeMass)
+  std::vector<char> tree_damped_;
+  bool actuators_damp_ = false;  // MuJoCo's implicit step takes actuators' rates (TreeMass)
   std::vector<int> tree_slot_;
   std::vector<int> rigid_roots_;
   RigidSystem rigid_;
@@ -345,7 +358,8 @@ class World {
   // predicted (MuJoCo steps once, after the substeps: its velocities stay
   // those of the step's start)
   std::vector<double> substep_velocity_;
-  std::vector<double> free_acceleration_;  // nv: M^-1 other_forces_ (substeps)
+  // nv: other_forces_ solved with each tree's TreeMass (substeps)
+  std::vector<double> free_acceleration_;
   bool free_acceleration_ready_ = false;
   std::vector<char> tree_carried_;  // per root body: substep_velocity_ is a substep's
   // per root body: a substep of this step solved the tree (RigidSystem)
