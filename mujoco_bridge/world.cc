@@ -579,6 +579,18 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
   }
   mjModel* m = world->model_;
   CheckModelFinite(m, scene_path);
+  // (MuJoCo takes a negative damping: it adds energy, and MuJoCo's step
+  // with it, M + dt B, and the deformables' step with it, lose definiteness:
+  // a lid damped -1 N m s was flung at 1e10 J in 0.2 s)
+  for (int dof = 0; dof < m->nv; ++dof) {
+    if (m->dof_damping[dof] >= 0.0) continue;
+    char damping[64];
+    std::snprintf(damping, sizeof(damping), " has damping %g < 0", m->dof_damping[dof]);
+    ThrowAt(scene_path, 0,
+            RowOwner(m, "jnt_damping", "njnt", m->dof_jntid[dof]) + " of " +
+                RowOwner(m, "body_", "nbody", m->dof_bodyid[dof]) + damping +
+                ", which adds energy (MuJoCo's step with it diverges); give 0 or more");
+  }
   if (options.timestep) m->opt.timestep = *options.timestep;
   // (MuJoCo takes any number: at -0.001 s a rollout "ran" backwards in time
   // and reported ok)

@@ -194,6 +194,13 @@ TEST(SceneLoading, BadScenesNameTheLine) {
   EXPECT_NE(ErrorOf(dir.Write("inf.xml", "<mujoco><option gravity=\"0 0 -inf\"/></mujoco>"))
                 .find("inf.xml: MuJoCo's <option> has a number that is not finite"),
             std::string::npos);
+  // (MuJoCo itself takes a negative damping)
+  EXPECT_NE(ErrorOf(dir.Write("pump.xml",
+                              "<mujoco><worldbody>\n<body name=\"lid\"><joint name=\"hinge\" "
+                              "damping=\"-1\"/><geom size=\".1\"/></body></worldbody></mujoco>"))
+                .find("pump.xml: joint 'hinge' of body 'lid' has damping -1 < 0, which adds "
+                      "energy"),
+            std::string::npos);
   // (MuJoCo itself takes a negative time step)
   EXPECT_NE(ErrorOf(dir.Write("back.xml", "<mujoco><option timestep=\"-0.001\"/></mujoco>"))
                 .find("back.xml: the time step is -0.001 s (<option timestep>)"),
@@ -712,7 +719,7 @@ TEST(Coupling, ADampedHingeTurnsAsMuJoCoTurnsIt) {
 }
 
 // The same damping on a tree of two degrees of freedom: a light two-link arm
-// (hinges damped 0.5 and 0.3 N m s, h B / I about 3 and 8 at 10 ms)
+// (hinges damped 0.5 and 0.3 N m s, h B / I about 1.3 and 5 at 10 ms)
 // lowering its hand onto a soft slab, its elbow held on a joint limit. The
 // limit's law, taken on tau J u / h for MuJoCo's J a (tau exact for the
 // limit's own response, not for the cross terms of M^-1 B), leaves the
