@@ -30,9 +30,34 @@
 namespace tetcosim {
 namespace {
 
+// Columns first to first + size - 1 of row `row` of a MuJoCo Jacobian of nv
+// columns (efc_J, ten_J), stored sparse (by its rownnz, rowadr, colind: with
+// mj_isSparse) or dense
+struct MjJacobianRows {
+  const double* values;
+  const int* rownnz;
+  const int* rowadr;
+  const int* colind;
+};
+void JacobianRowSegment(const mjModel* m, const MjJacobianRows& jacobian, int row, int first,
+                        Eigen::Ref<Eigen::RowVectorXd> segment) {
+  if (!mj_isSparse(m)) {
+    segment = Eigen::Map<const Eigen::RowVectorXd>(
+        jacobian.values + static_cast<size_t>(row) * m->nv + first, segment.size());
+    return;
+  }
+  segment.setZero();
+  for (int e = 0; e < jacobian.rownnz[row]; ++e) {
+    const int address = jacobian.rowadr[row] + e;
+    const int column = jacobian.colind[address] - first;
+    if (column >= 0 && column < segment.size()) segment[column] = jacobian.values[address];
+  }
+}
+
 // MuJoCo's implicit step, with an actuator whose force changes with its
-// velocity (an affine gain or bias with a velocity term: World::TreeMass)
-bool ActuatorsDamp(const mjModel* m) {
+// velocity (an affine gain or bias with a velocity term) or a damped
+// tendon, which it takes implicitly (World::TreeMass)
+bool ImplicitStepDamps(const mjModel* m) {
   if (m->opt.integrator != mjINT_IMPLICIT) return false;
   for (int a = 0; a < m->nu; ++a) {
     if ((m->actuator_gaintype[a] == mjGAIN_AFFINE && m->actuator_gainprm[mjNGAIN * a + 2] != 0.0) ||
@@ -40,7 +65,8 @@ bool ActuatorsDamp(const mjModel* m) {
       return true;
     }
   }
-  return false;
+  return std::any_of(m->tendon_damping, m->tendon_damping + m->ntendon,
+                     [](double damping) { return damping > 0.0; });
 }
 
 // MuJoCo's matrices are row-major: xmat, ximat, geom_xmat (3 x 3) and the
@@ -818,10 +844,10 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
   world->tree_first_dof_.assign(m->nbody, -1);
   world->tree_num_dofs_.assign(m->nbody, 0);
   world->tree_damped_.assign(m->nbody, 0);
-  world->actuators_damp_ = ActuatorsDamp(m);
+  world->implicit_damps_ = ImplicitStepDamps(m);
   for (int dof = 0; dof < m->nv; ++dof) {
     const int root = m->body_rootid[m->dof_bodyid[dof]];
-    if (m->dof_damping[dof] > 0.0 || world->actuators_damp_) world->tree_damped_[root] = 1;
+    if (m->dof_damping[dof] > 0.0 || world->implicit_damps_) world->tree_damped_[root] = 1;
     if (world->tree_first_dof_[root] < 0) world->tree_first_dof_[root] = dof;
     if (world->tree_first_dof_[root] + world->tree_num_dofs_[root] != dof) {
       throw Error(scene_path + ": MuJoCo's degrees of freedom of the tree of body '" +
@@ -1109,7 +1135,8 @@ int World::ConstraintRows(int row) const {
 void World::LinearizeConstraints(double dt) {
   const mjModel* m = model_;
   const mjData* d = data_;
-  const bool sparse = mj_isSparse(m) != 0;
+  const MjJacobianRows constraint_jacobian = {d->efc_J, d->efc_J_rownnz, d->efc_J_rowadr,
+                                              d->efc_J_colind};
   for (int first = 0, rows = 1; first < d->nefc; first += rows) {
     rows = ConstraintRows(first);
     const int type = d->efc_type[first];
@@ -1134,16 +1161,7 @@ void World::LinearizeConstraints(double dt) {
         RigidTree& tree = rigid_.trees[static_cast<size_t>(slots[k])];
         const int size = static_cast<int>(tree.velocity.size());
         auto row = constraint.jacobian.row(r).segment(column, size);
-        if (sparse) {
-          for (int e = 0; e < d->efc_J_rownnz[i]; ++e) {
-            const int address = d->efc_J_rowadr[i] + e;
-            const int dof = d->efc_J_colind[address] - first_dofs[k];
-            if (dof >= 0 && dof < size) row[dof] = d->efc_J[address];
-          }
-        } else {
-          row = Eigen::Map<const Eigen::RowVectorXd>(
-              d->efc_J + static_cast<size_t>(i) * m->nv + first_dofs[k], size);
-        }
+        JacobianRowSegment(m, constraint_jacobian, i, first_dofs[k], row);
         tree.impulse -= dt * d->efc_force[i] * row.transpose();
         column += size;
       }
@@ -1229,10 +1247,10 @@ Eigen::MatrixXd World::MassBlock(int root) const {
 // v with its joints' damping B implicitly: (M + h B) (v' - v) = h f, f the
 // forces with the damping's -B v at the step's start (h: the time step).
 // Its implicit step takes so the actuators' forces' rates with their
-// velocities too (a velocity servo's -kv): M + h B - h sum_a r_a m_a m_a^T,
-// m_a the actuator's moment arms, r_a its rate (taken where < 0, as a
-// damping). The substeps take h, not their own, so that (their mean force
-// being MuJoCo's) the velocities they reach are the ones MuJoCo's step
+// velocities too (a velocity servo's -kv): - h sum_a r_a m_a m_a^T, m_a
+// the actuator's moment arms, r_a its rate (taken where < 0, as a
+// damping); and the tendons' damping, h sum_t b_t J_t^T J_t. The substeps take h, not their own, so
+// that (their mean force being MuJoCo's) the velocities they reach are the ones MuJoCo's step
 // reaches.
 Eigen::MatrixXd World::TreeMass(int root) const {
   const mjModel* m = model_;
@@ -1240,14 +1258,20 @@ Eigen::MatrixXd World::TreeMass(int root) const {
   const int size = tree_num_dofs_[root];
   Eigen::MatrixXd mass = MassBlock(root);
   for (int i = 0; i < size; ++i) mass(i, i) += m->opt.timestep * m->dof_damping[first + i];
-  if (actuators_damp_) {
-    for (int a = 0; a < m->nu; ++a) {
-      const double rate = ActuatorForceRate(a);
-      if (!(rate < 0.0)) continue;
-      const Eigen::Map<const Eigen::VectorXd> arms(data_->actuator_moment + a * m->nv + first,
-                                                   size);
-      mass.noalias() -= m->opt.timestep * rate * arms * arms.transpose();
-    }
+  if (!implicit_damps_) return mass;
+  for (int a = 0; a < m->nu; ++a) {
+    const double rate = ActuatorForceRate(a);
+    if (!(rate < 0.0)) continue;
+    const Eigen::Map<const Eigen::VectorXd> arms(data_->actuator_moment + a * m->nv + first, size);
+    mass.noalias() -= m->opt.timestep * rate * arms * arms.transpose();
+  }
+  const MjJacobianRows tendon_jacobian = {data_->ten_J, data_->ten_J_rownnz, data_->ten_J_rowadr,
+                                          data_->ten_J_colind};
+  Eigen::RowVectorXd arms(size);
+  for (int t = 0; t < m->ntendon; ++t) {
+    if (!(m->tendon_damping[t] > 0.0)) continue;
+    JacobianRowSegment(m, tendon_jacobian, t, first, arms);
+    mass.noalias() += m->opt.timestep * m->tendon_damping[t] * arms.transpose() * arms;
   }
   return mass;
 }

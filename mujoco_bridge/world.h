@@ -263,7 +263,7 @@ class World {
   // The tree's block of the matrix MuJoCo's step integrates its velocities
   // with: M plus the time step times the joints' damping, which its Euler
   // (and implicit) integrator takes implicitly, and (implicit) the
-  // actuators' rates with their velocities
+  // actuators' rates with their velocities and the tendons' damping
   Eigen::MatrixXd TreeMass(int root) const;
   double ActuatorForceRate(int actuator) const;
   void AddRigidForce(int body, const Eigen::Vector3d& point, const Eigen::Vector3d& force);
@@ -341,7 +341,8 @@ class World {
   std::vector<int> tree_num_dofs_;
   // per root body: MuJoCo's step takes more than M for its tree (TreeMass)
   std::vector<char> tree_damped_;
-  bool actuators_damp_ = false;  // MuJoCo's implicit step takes actuators' rates (TreeMass)
+  // MuJoCo's implicit step takes actuators' rates or tendons' damping (TreeMass)
+  bool implicit_damps_ = false;
   std::vector<int> tree_slot_;
   std::vector<int> rigid_roots_;
   RigidSystem rigid_;

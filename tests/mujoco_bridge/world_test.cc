@@ -642,14 +642,16 @@ TEST(Coupling, AHingeHeldByItsFrictionLossTurnsAsMuJoCoTurnsIt) {
 // a soft cube lands on: free, held on its joint limit, swinging up into a
 // cube thrown down at it with three substeps (each substep's trees that it
 // does not solve moving on as MuJoCo's step will move them), damped half by
-// the joint and half by a velocity servo with the implicit integrator, and
-// by an affine velocity gain whose control is beyond its range. The step
-// predicts the lid as MuJoCo turns it (measured: 9e-8 to 9e-7 rad/s at
+// the joint and half by a velocity servo with the implicit integrator, by
+// an affine velocity gain whose control is beyond its range, and by a
+// damped tendon (implicit, with MuJoCo's sparse and dense Jacobians). The
+// step predicts the lid as MuJoCo turns it (measured: 9e-8 to 9e-7 rad/s at
 // most). (With the damping taken at the step's start alone, the prediction
 // was 2.2, 0.18 and 2.0 rad/s off in the first three; with the limit's law
 // on J u / h rather than MuJoCo's J a, 0.16 rad/s; the unsolved lid moved
 // on without the damping between substeps, 9e-3 rad/s; the servo's rate
-// left out, 0.84 rad/s; the gain's with the control clamped, 0.3 rad/s.)
+// left out, 0.84 rad/s; the gain's with the control clamped, 0.3 rad/s;
+// the tendon's damping left out, 2.2 rad/s.)
 TEST(Coupling, ADampedHingeTurnsAsMuJoCoTurnsIt) {
   struct Case {
     const char* name;
@@ -673,6 +675,14 @@ TEST(Coupling, ADampedHingeTurnsAsMuJoCoTurnsIt) {
        "<actuator><general joint=\"hinge\" gaintype=\"affine\" gainprm=\"0 0 -1\" "
        "ctrllimited=\"true\" ctrlrange=\"0 0.5\"/></actuator>\n"
        "<keyframe><key ctrl=\"0.8\"/></keyframe>\n<deformable>",
+       "pos=\"0.05 0 0.3\"", 80},
+      {"a damped tendon, implicit, sparse", "", "integrator=\"implicit\" jacobian=\"sparse\"",
+       "<tendon><fixed damping=\"1\"><joint joint=\"hinge\" coef=\"1\"/></fixed></tendon>\n"
+       "<deformable>",
+       "pos=\"0.05 0 0.3\"", 80},
+      {"a damped tendon, implicit, dense", "", "integrator=\"implicit\" jacobian=\"dense\"",
+       "<tendon><fixed damping=\"1\"><joint joint=\"hinge\" coef=\"1\"/></fixed></tendon>\n"
+       "<deformable>",
        "pos=\"0.05 0 0.3\"", 80},
   };
   for (const Case& c : cases) {
