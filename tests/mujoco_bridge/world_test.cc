@@ -637,21 +637,22 @@ TEST(Coupling, AHingeHeldByItsFrictionLossTurnsAsMuJoCoTurnsIt) {
 // MuJoCo's Euler step takes a joint's damping B implicitly, (M + h B) (v' -
 // v) = h f (f with the damping's -B v at the step's start), and solves its
 // constraints' forces with M alone; its implicit step takes so an
-// actuator's rate with its velocity too. A lid (0.3 kg, 30 cm) on a hinge
-// damped to about its inertia over a step (h B / I = 1.1, at 10 ms), which
-// a soft cube lands on: free, held on its joint limit, swinging up into a
-// cube thrown down at it with three substeps (each substep's trees that it
-// does not solve moving on as MuJoCo's step will move them), damped half by
-// the joint and half by a velocity servo with the implicit integrator, by
-// an affine velocity gain whose control is beyond its range, and by a
-// damped tendon (implicit, with MuJoCo's sparse and dense Jacobians). The
-// step predicts the lid as MuJoCo turns it (measured: 9e-8 to 9e-7 rad/s at
-// most). (With the damping taken at the step's start alone, the prediction
-// was 2.2, 0.18 and 2.0 rad/s off in the first three; with the limit's law
-// on J u / h rather than MuJoCo's J a, 0.16 rad/s; the unsolved lid moved
-// on without the damping between substeps, 9e-3 rad/s; the servo's rate
-// left out, 0.84 rad/s; the gain's with the control clamped, 0.3 rad/s;
-// the tendon's damping left out, 2.2 rad/s.)
+// actuator's rate with its velocity and a tendon's damping too. A lid (0.3
+// kg, 30 cm) on a hinge damped to about its inertia over a step (h B / I =
+// 1.1, at 10 ms), which a soft cube lands on: free; held on its joint limit
+// (MuJoCo's Jacobians dense and sparse); swinging up into a cube thrown
+// down at it with three substeps (each substep's trees that it does not
+// solve moving on as MuJoCo's step will move them); damped half by the
+// joint and half by a velocity servo with the implicit integrator; by an
+// affine velocity gain whose control is beyond its range; and by a damped
+// tendon (implicit, sparse and dense). The step predicts the lid as MuJoCo
+// turns it (measured: 9e-8 to 9e-7 rad/s at most). (With the damping taken
+// at the step's start alone, the prediction was 2.2, 0.18 and 2.0 rad/s off
+// in the first three; with the limit's law on J u / h rather than MuJoCo's
+// J a, 0.16 rad/s; the unsolved lid moved on without the damping between
+// substeps, 9e-3 rad/s; the servo's rate left out, 0.84 rad/s; the gain's
+// with the control clamped, 0.3 rad/s; the tendon's damping left out, 2.2
+// rad/s.)
 TEST(Coupling, ADampedHingeTurnsAsMuJoCoTurnsIt) {
   struct Case {
     const char* name;
@@ -665,6 +666,8 @@ TEST(Coupling, ADampedHingeTurnsAsMuJoCoTurnsIt) {
       {"free", "damping=\"1\"", "", "<deformable>", "pos=\"0.05 0 0.3\"", 80},
       {"on its limit", "damping=\"1\" range=\"-60 0\" limited=\"true\"", "", "<deformable>",
        "pos=\"0.05 0 0.3\"", 80},
+      {"on its limit, sparse", "damping=\"1\" range=\"-60 0\" limited=\"true\"",
+       "jacobian=\"sparse\"", "<deformable>", "pos=\"0.05 0 0.3\"", 80},
       {"swinging, three substeps", "damping=\"1\"", "",
        "<keyframe><key qpos=\"0.3\" qvel=\"-4\"/></keyframe>\n<deformable><solver substeps=\"3\"/>",
        "pos=\"0.1 0 0.3\" vel=\"0 0 -1.3\"", 40},
