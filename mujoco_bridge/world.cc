@@ -1137,6 +1137,7 @@ void World::LinearizeConstraints(double dt) {
   const mjData* d = data_;
   const MjJacobianRows constraint_jacobian = {d->efc_J, d->efc_J_rownnz, d->efc_J_rowadr,
                                               d->efc_J_colind};
+  std::vector<DampingFactors> factors(rigid_.trees.size());  // (ScaleForDamping)
   for (int first = 0, rows = 1; first < d->nefc; first += rows) {
     rows = ConstraintRows(first);
     const int type = d->efc_type[first];
@@ -1188,7 +1189,7 @@ void World::LinearizeConstraints(double dt) {
     }
     if (tree_damped_[rigid_roots_[static_cast<size_t>(slots[0])]] ||
         (num_solved == 2 && tree_damped_[rigid_roots_[static_cast<size_t>(slots[1])]])) {
-      ScaleForDamping(&constraint);
+      ScaleForDamping(&constraint, &factors);
     }
   }
 }
@@ -1205,19 +1206,24 @@ void World::LinearizeConstraints(double dt) {
 // friction loss, its start residual) divided by sqrt(tau), which is the same
 // law on the same J^T force (the laws' forces are of degree one in J a -
 // aref, the cone's zones of degree zero), and symmetric.
-void World::ScaleForDamping(RigidConstraint* constraint) const {
+void World::ScaleForDamping(RigidConstraint* constraint,
+                            std::vector<DampingFactors>* factors) const {
   double undamped = 0.0, damped = 0.0;  // tr(J M^-1 J^T), tr(J (M + h B)^-1 J^T)
   int column = 0;
   for (const int slot : constraint->trees) {
     if (slot < 0) continue;
-    const RigidTree& tree = rigid_.trees[static_cast<size_t>(slot)];
     const int root = rigid_roots_[static_cast<size_t>(slot)];
     const int size = tree_num_dofs_[root];
+    DampingFactors& tree_factors = (*factors)[static_cast<size_t>(slot)];
+    if (tree_factors.damped.rows() == 0) {  // (the tree's first constraint)
+      tree_factors.undamped.compute(MassBlock(root));
+      tree_factors.damped.compute(rigid_.trees[static_cast<size_t>(slot)].mass);
+    }
     const Eigen::MatrixXd jacobian = constraint->jacobian.middleCols(column, size);
     column += size;
     const Eigen::MatrixXd transposed = jacobian.transpose();
-    undamped += (jacobian * MassBlock(root).ldlt().solve(transposed)).trace();
-    damped += (jacobian * tree.mass.ldlt().solve(transposed)).trace();
+    undamped += (jacobian * tree_factors.undamped.solve(transposed)).trace();
+    damped += (jacobian * tree_factors.damped.solve(transposed)).trace();
   }
   if (!(damped > 0.0)) return;
   const double root_tau = std::sqrt(undamped / damped);
@@ -1249,9 +1255,9 @@ Eigen::MatrixXd World::MassBlock(int root) const {
 // Its implicit step takes so the actuators' forces' rates with their
 // velocities too (a velocity servo's -kv): - h sum_a r_a m_a m_a^T, m_a
 // the actuator's moment arms, r_a its rate (taken where < 0, as a
-// damping); and the tendons' damping, h sum_t b_t J_t^T J_t. The substeps take h, not their own, so
-// that (their mean force being MuJoCo's) the velocities they reach are the ones MuJoCo's step
-// reaches.
+// damping); and the tendons' damping, h sum_t b_t J_t^T J_t. The substeps
+// take h, not their own, so that (their mean force being MuJoCo's) the
+// velocities they reach are the ones MuJoCo's step reaches.
 Eigen::MatrixXd World::TreeMass(int root) const {
   const mjModel* m = model_;
   const int first = tree_first_dof_[root];

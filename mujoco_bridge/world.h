@@ -253,8 +253,12 @@ class World {
   // system is in: tree_slot_ tells which are)
   void LinearizeConstraints(double dt);
   // the constraint's rows and forces scaled for the damping MuJoCo's step
-  // takes implicitly on its trees (TreeMass)
-  void ScaleForDamping(RigidConstraint* constraint) const;
+  // takes implicitly on its trees (TreeMass), with each tree's M and
+  // TreeMass factorized once a substep, by its slot in rigid_
+  struct DampingFactors {
+    Eigen::LDLT<Eigen::MatrixXd> undamped, damped;
+  };
+  void ScaleForDamping(RigidConstraint* constraint, std::vector<DampingFactors>* factors) const;
   // the rows of the constraint whose first row is `row`: an elliptic cone
   // contact's dim, else 1
   int ConstraintRows(int row) const;
