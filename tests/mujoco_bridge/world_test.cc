@@ -7,7 +7,6 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
@@ -54,6 +53,35 @@ double PredictionError(const World& world) {
     largest = std::max(largest, (predicted - found).norm());
   }
   return largest;
+}
+
+// A lid (a 30 x 20 x 2 cm box of 0.3 kg) on a hinge along y at its end, 20
+// cm up, and a soft 6 cm cube (3 cells a side, E = 1e5 Pa) to meet it, at
+// 10 ms: the hinge's attributes, the cube's placement (pos, vel), more of
+// <option>'s attributes, elements before <deformable> and first in it
+std::string LidScene(const std::string& joint, const std::string& cube,
+                     const std::string& option = "", const std::string& before = "",
+                     const std::string& first_in_deformable = "") {
+  return R"(<mujoco>
+  <option timestep="0.01" )" +
+         option + R"(/>
+  <worldbody>
+    <body name="lid" pos="-0.15 0 0.2">
+      <joint name="hinge" type="hinge" axis="0 1 0" )" +
+         joint + R"(/>
+      <geom name="lid" type="box" pos="0.15 0 0" size="0.15 0.1 0.01" mass="0.3"/>
+    </body>
+  </worldbody>
+  )" + before +
+         R"(
+  <deformable>)" +
+         first_in_deformable + R"(
+    <rigidtet body="lid" geom="lid" resolution="4"/>
+    <tetbody name="cube" shape="box" size="0.03 0.03 0.03" resolution="3" )" +
+         cube + R"(
+             density="1000" young="1e5"/>
+  </deformable>
+</mujoco>)";
 }
 
 std::string ErrorOf(const std::string& path, const WorldOptions& options = {}) {
@@ -597,20 +625,8 @@ TEST(Coupling, ABoxSlidingUnderASoftCubeIsPredictedAsMuJoCoSlidesIt) {
 // the step, 5 rad/s.)
 TEST(Coupling, AHingeHeldByItsFrictionLossTurnsAsMuJoCoTurnsIt) {
   TempDir dir;
-  const std::string path = dir.Write("friction_loss.xml", R"(<mujoco>
-  <option timestep="0.01"/>
-  <worldbody>
-    <body name="lid" pos="-0.15 0 0.2">
-      <joint type="hinge" axis="0 1 0" frictionloss="0.6"/>
-      <geom name="lid" type="box" pos="0.15 0 0" size="0.15 0.1 0.01" mass="0.3"/>
-    </body>
-  </worldbody>
-  <deformable>
-    <rigidtet body="lid" geom="lid" resolution="4"/>
-    <tetbody name="cube" shape="box" size="0.03 0.03 0.03" resolution="3" pos="0.05 0 0.3"
-             density="1000" young="1e5"/>
-  </deformable>
-</mujoco>)");
+  const std::string path =
+      dir.Write("friction_loss.xml", LidScene("frictionloss=\"0.6\"", "pos=\"0.05 0 0.3\""));
   std::unique_ptr<World> world = World::Load(path);
   const mjData* d = world->mj_data();
   double largest_error = 0.0, fastest = 0.0;
@@ -658,57 +674,38 @@ TEST(Coupling, ADampedHingeTurnsAsMuJoCoTurnsIt) {
     const char* name;
     const char* joint;
     const char* option;
-    const char* extra;  // before <deformable>, and its opening tag
-    const char* cube;   // its position and velocity
+    const char* before;               // before <deformable>
+    const char* first_in_deformable;  // <solver>
+    const char* cube;                 // its position and velocity
     int steps;
   };
+  const char* tendon =
+      "<tendon><fixed damping=\"1\"><joint joint=\"hinge\" coef=\"1\"/></fixed></tendon>";
   const Case cases[] = {
-      {"free", "damping=\"1\"", "", "<deformable>", "pos=\"0.05 0 0.3\"", 80},
-      {"on its limit", "damping=\"1\" range=\"-60 0\" limited=\"true\"", "", "<deformable>",
+      {"free", "damping=\"1\"", "", "", "", "pos=\"0.05 0 0.3\"", 80},
+      {"on its limit", "damping=\"1\" range=\"-60 0\" limited=\"true\"", "", "", "",
        "pos=\"0.05 0 0.3\"", 80},
       {"on its limit, sparse", "damping=\"1\" range=\"-60 0\" limited=\"true\"",
-       "jacobian=\"sparse\"", "<deformable>", "pos=\"0.05 0 0.3\"", 80},
+       "jacobian=\"sparse\"", "", "", "pos=\"0.05 0 0.3\"", 80},
       {"swinging, three substeps", "damping=\"1\"", "",
-       "<keyframe><key qpos=\"0.3\" qvel=\"-4\"/></keyframe>\n<deformable><solver substeps=\"3\"/>",
+       "<keyframe><key qpos=\"0.3\" qvel=\"-4\"/></keyframe>", "<solver substeps=\"3\"/>",
        "pos=\"0.1 0 0.3\" vel=\"0 0 -1.3\"", 40},
       {"a velocity servo, implicit", "damping=\"0.5\"", "integrator=\"implicit\"",
-       "<actuator><velocity joint=\"hinge\" kv=\"0.5\"/></actuator>\n<deformable>",
-       "pos=\"0.05 0 0.3\"", 80},
+       "<actuator><velocity joint=\"hinge\" kv=\"0.5\"/></actuator>", "", "pos=\"0.05 0 0.3\"", 80},
       {"a velocity gain beyond its control range, implicit", "", "integrator=\"implicit\"",
        "<actuator><general joint=\"hinge\" gaintype=\"affine\" gainprm=\"0 0 -1\" "
        "ctrllimited=\"true\" ctrlrange=\"0 0.5\"/></actuator>\n"
-       "<keyframe><key ctrl=\"0.8\"/></keyframe>\n<deformable>",
-       "pos=\"0.05 0 0.3\"", 80},
+       "<keyframe><key ctrl=\"0.8\"/></keyframe>",
+       "", "pos=\"0.05 0 0.3\"", 80},
       {"a damped tendon, implicit, sparse", "", "integrator=\"implicit\" jacobian=\"sparse\"",
-       "<tendon><fixed damping=\"1\"><joint joint=\"hinge\" coef=\"1\"/></fixed></tendon>\n"
-       "<deformable>",
-       "pos=\"0.05 0 0.3\"", 80},
-      {"a damped tendon, implicit, dense", "", "integrator=\"implicit\" jacobian=\"dense\"",
-       "<tendon><fixed damping=\"1\"><joint joint=\"hinge\" coef=\"1\"/></fixed></tendon>\n"
-       "<deformable>",
-       "pos=\"0.05 0 0.3\"", 80},
+       tendon, "", "pos=\"0.05 0 0.3\"", 80},
+      {"a damped tendon, implicit, dense", "", "integrator=\"implicit\" jacobian=\"dense\"", tendon,
+       "", "pos=\"0.05 0 0.3\"", 80},
   };
   for (const Case& c : cases) {
     SCOPED_TRACE(c.name);
     TempDir dir;
-    std::string scene = R"(<mujoco>
-  <option timestep="0.01" OPTION/>
-  <worldbody>
-    <body name="lid" pos="-0.15 0 0.2">
-      <joint name="hinge" type="hinge" axis="0 1 0" JOINT/>
-      <geom name="lid" type="box" pos="0.15 0 0" size="0.15 0.1 0.01" mass="0.3"/>
-    </body>
-  </worldbody>
-  EXTRA
-    <rigidtet body="lid" geom="lid" resolution="4"/>
-    <tetbody name="cube" shape="box" size="0.03 0.03 0.03" resolution="3" CUBE
-             density="1000" young="1e5"/>
-  </deformable>
-</mujoco>)";
-    for (const auto& [key, value] : {std::pair{"OPTION", c.option}, std::pair{"JOINT", c.joint},
-                                     std::pair{"EXTRA", c.extra}, std::pair{"CUBE", c.cube}}) {
-      scene.replace(scene.find(key), std::strlen(key), value);
-    }
+    const std::string scene = LidScene(c.joint, c.cube, c.option, c.before, c.first_in_deformable);
     std::unique_ptr<World> world = World::Load(dir.Write("damped.xml", scene));
     double largest_error = 0.0;
     int solved_steps = 0, constrained_steps = 0;
@@ -788,20 +785,8 @@ TEST(Coupling, ADampedArmIsPredictedAsMuJoCoMovesItButWhereItLands) {
 // prediction) and added 0.03 J.
 TEST(Coupling, AJointLimitStruckOpenIsReleasedAsMuJoCoReleasesIt) {
   TempDir dir;
-  const std::string path = dir.Write("lid.xml", R"(<mujoco>
-  <option timestep="0.01"/>
-  <worldbody>
-    <body name="lid" pos="-0.15 0 0.2">
-      <joint type="hinge" axis="0 1 0" range="-90 0" limited="true"/>
-      <geom name="lid" type="box" pos="0.15 0 0" size="0.15 0.1 0.01" mass="0.3"/>
-    </body>
-  </worldbody>
-  <deformable>
-    <rigidtet body="lid" geom="lid" resolution="4"/>
-    <tetbody name="cube" shape="box" size="0.03 0.03 0.03" resolution="3" pos="0.05 0 0.1"
-             vel="0 0 3" density="1000" young="1e5"/>
-  </deformable>
-</mujoco>)");
+  const std::string path = dir.Write(
+      "lid.xml", LidScene("range=\"-90 0\" limited=\"true\"", "pos=\"0.05 0 0.1\" vel=\"0 0 3\""));
   std::unique_ptr<World> world = World::Load(path);
   const mjModel* m = world->mj_model();
   mjData* d = world->mj_data();
