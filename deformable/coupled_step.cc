@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <utility>
 
 #include "mesh/parallel_for.h"
 
@@ -264,10 +265,13 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     laws[k].offset.setZero(constraint.mass.size());
     constraint.released = constraint.sliding = false;
   };
-  auto slide_about = [&](size_t k, const Eigen::VectorXd& r) {
-    RigidConstraint& constraint = rigid->constraints[k];
+  // an elliptic cone's law linearized about r, given its force and Hessian
+  // there (MiddleZoneForce; the caller has them: Newton's check needs them too)
+  auto slide_about = [&](size_t k, const Eigen::VectorXd& r, Eigen::VectorXd force,
+                         Eigen::MatrixXd hessian) {
     ConstraintLaw& law = laws[k];
-    MiddleZoneForce(constraint, r, law.force, law.hessian);
+    law.force = std::move(force);
+    law.hessian = std::move(hessian);
     law.offset = dt * (law.force + law.hessian * r);
     law.about = r;
   };
@@ -280,7 +284,10 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
       laws[k].hessian.setZero(1, 1);
       laws[k].offset = Eigen::VectorXd::Constant(1, -dt * state.sliding * constraint.friction_loss);
     } else if (state.sliding != 0) {
-      slide_about(k, r);
+      Eigen::VectorXd force;
+      Eigen::MatrixXd hessian;
+      MiddleZoneForce(constraint, r, force, hessian);
+      slide_about(k, r, std::move(force), std::move(hessian));
     }
     constraint.released = state.released;
     constraint.sliding = state.sliding != 0;
@@ -906,7 +913,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
         const Eigen::VectorXd on_line =
             laws[k].force - laws[k].hessian * (residual - laws[k].about);
         if ((force - on_line).norm() > kConeForceTolerance * force.norm()) {
-          slide_about(k, residual);
+          slide_about(k, residual, std::move(force), std::move(hessian));
           ++laws[k].linearizations;
           changed = true;
         }
