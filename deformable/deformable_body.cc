@@ -303,6 +303,7 @@ void DeformableBody::AddElementMatrix(int t, const Eigen::Matrix<double, 4, 3>& 
     const double ca[3] = {c(a, 0), c(a, 1), c(a, 2)};
     for (int bb = a; bb < 4; ++bb) {
       const double cb[3] = {c(bb, 0), c(bb, 1), c(bb, 2)};
+      // (b_a . b_b summed in the order of Eigen's dot product of three)
       const double diagonal =
           s_mu * (grad(a, 0) * grad(bb, 0) + (grad(a, 1) * grad(bb, 1) + grad(a, 2) * grad(bb, 2)));
       double block[3][3];
