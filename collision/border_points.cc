@@ -11,6 +11,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <span>
 
 #include "collision/geometry.h"
 #include "collision/penetration_internal.h"
@@ -83,8 +84,12 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
     }
     scratch.edges = 0;
     scratch.triangle_tests = 0;
-    scratch.candidates.clear();
   }
+  // (room in every thread for all the candidates of a layer, whoever lists
+  // them, and for those of a point that turns out not to be a border point:
+  // penetration_internal.h)
+  ClearForAnyShare(std::span<ThreadScratch>(thread_scratch_), &ThreadScratch::candidates,
+                   max_degree_);
   auto resolve = [&](int h) {  // stages 2 and 3 for hit h
     ThreadScratch& scratch = thread_scratch_[omp_get_thread_num()];
     const Hit& hit = colliding_.hits()[h];

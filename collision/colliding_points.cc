@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <atomic>
 #include <bit>
+#include <cstddef>
 #include <cstdint>
 #include <cstring>
 #include <limits>
@@ -346,10 +347,26 @@ int CollidingPoints::BeginSearch(int num_threads) {
   bool any_deformable = false;  // (only rigid objects: no pair to test)
   for (const CollisionObject& object : objects_) any_deformable |= !object.rigid;
   if (static_cast<int>(thread_scratch_.size()) < num_threads) thread_scratch_.resize(num_threads);
-  for (ThreadScratch& scratch : thread_scratch_) {
-    scratch.hits.clear();
-    scratch.large_tets.clear();
-    scratch.tet_tests = 0;
+  // (every thread ready for any share of the chunks, penetration_internal.h:
+  // room for all the last solve's hits and large tets, and for the most
+  // candidates a thread gathered from one chunk)
+  const std::span<ThreadScratch> scratch(thread_scratch_);
+  ClearForAnyShare(scratch, &ThreadScratch::hits);
+  ClearForAnyShare(scratch, &ThreadScratch::large_tets);
+  std::size_t most_gathered = 0;
+  for (const ThreadScratch& thread : scratch) {
+    most_gathered = std::max(most_gathered, thread.gathered.vertex.size());
+  }
+  for (ThreadScratch& thread : scratch) {
+    HashedVertices& gathered = thread.gathered;
+    if (gathered.vertex.size() < most_gathered) {
+      for (std::vector<double>* values : {&gathered.x, &gathered.y, &gathered.z}) {
+        values->resize(most_gathered);
+      }
+      gathered.vertex.resize(most_gathered);
+      gathered.object.resize(most_gathered);
+    }
+    thread.tet_tests = 0;
   }
   if (!any_deformable) return 0;
   return any_kept_ ? static_cast<int>(search_chunks_.size()) : chunk_offset_[num_objects];
@@ -701,6 +718,8 @@ void PenetrationSolver::FindCollidingPointsAndHashSurfaces(std::span<const Colli
                   cell_size_);
   const int num_chunks = colliding_.BeginSearch(threads);
   if (static_cast<int>(thread_scratch_.size()) < threads) thread_scratch_.resize(threads);
+  // (any thread may make the largest surface: penetration_internal.h)
+  ReserveLikeLargest(std::span<ThreadScratch>(thread_scratch_), &ThreadScratch::faces);
   std::atomic<bool> hash_built = false;
   std::atomic<int> surfaces_left = num_surfaces;
   Clock::time_point hash_end = start, surfaces_end = start;

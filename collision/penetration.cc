@@ -94,6 +94,7 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
   vertices_.positions.resize(num_objects);
   double edge_sum = 0.0;
   long edge_count = 0;
+  max_degree_ = 0;
   for (int o = 0; o < num_objects; ++o) {
     const CollisionObject& object = objects[o];
     if (object.mesh == nullptr || object.positions == nullptr ||
@@ -111,6 +112,7 @@ void PenetrationSolver::Prepare(std::span<const CollisionObject> objects) {
     edge_sum +=
         object.mesh->average_edge_length() * static_cast<double>(object.mesh->edges().rows());
     edge_count += object.mesh->edges().rows();
+    max_degree_ = std::max(max_degree_, object.mesh->max_degree());
   }
   const int num_vertices = vertex_offset[num_objects];
   if (vertex_offset != vertices_.object_filled_for) {  // (the same objects: already filled)

@@ -186,6 +186,7 @@ class PenetrationSolver {
   PenetrationOptions options_;
   double cell_size_ = 1.0;     // of every hash (vertices, each object's triangles), metres
   double length_scale_ = 1.0;  // the objects' average edge length, metres
+  int max_degree_ = 0;         // the most neighbours of a vertex in the objects
 
   GlobalVertices vertices_;
   // broad phase: per object its current (inflated) bounding box, and its

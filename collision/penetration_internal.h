@@ -7,7 +7,10 @@
 #include <Eigen/Core>
 #include <algorithm>
 #include <chrono>
+#include <cstddef>
 #include <limits>
+#include <span>
+#include <vector>
 
 #include "mesh/tet_mesh.h"
 
@@ -85,6 +88,39 @@ inline long SpreadVertex(long i, long n, long num_vertices) {
 // much as a few thousand cheap iterations, so short loops run on one.
 inline int ThreadsFor(int num_threads, int n, int min_per_thread) {
   return std::clamp(n / min_per_thread, 1, std::max(1, num_threads));
+}
+
+// Per-thread buffers of a loop whose items fall to the threads differently
+// from solve to solve (dynamic schedules, and the surfaces made alongside
+// stage 1): made ready before the loop, so that solving a scene like the
+// last allocates nothing, however the items fall. (A thread's buffer
+// otherwise grows the first time its share is larger than ever, which may
+// be hundreds of solves after the last growth: measured on the crowded
+// scene of the determinism tests on two threads.)
+//
+// ClearForAnyShare: `buffer` collects what a thread's items find (stage 1's
+// hits, the candidates of stages 2 and 4): emptied, each keeps room for
+// what all threads' held together, and `extra` more (an item that lists up
+// to that many and then takes them back: a point's neighbours). A thread's
+// buffer holds up to all of a loop's output, as one thread's would: stage
+// 1's hits, 64 bytes a colliding point (x86-64-v3), times the threads.
+template <typename Scratch, typename T>
+void ClearForAnyShare(std::span<Scratch> scratch, std::vector<T> Scratch::*buffer,
+                      std::size_t extra = 0) {
+  std::size_t all = extra;
+  for (const Scratch& thread : scratch) all += (thread.*buffer).size();
+  for (Scratch& thread : scratch) {
+    (thread.*buffer).clear();
+    (thread.*buffer).reserve(all);
+  }
+}
+// ReserveLikeLargest: `buffer` holds one item's work at a time (an object's
+// faces in play): each gets the capacity of the largest.
+template <typename Scratch, typename T>
+void ReserveLikeLargest(std::span<Scratch> scratch, std::vector<T> Scratch::*buffer) {
+  std::size_t most = 0;
+  for (const Scratch& thread : scratch) most = std::max(most, (thread.*buffer).capacity());
+  for (Scratch& thread : scratch) (thread.*buffer).reserve(most);
 }
 
 // The cells of the box [lo, hi] of cells: 0 if it is empty, and saturated

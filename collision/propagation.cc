@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <span>
 
 #include "collision/geometry.h"
 #include "collision/penetration_internal.h"
@@ -50,7 +51,11 @@ void PenetrationSolver::Propagate(std::span<const CollisionObject> objects) {
     std::sort(next_frontier_.begin(), next_frontier_.end());
     const int layer_size = static_cast<int>(next_frontier_.size());
     const int threads = ThreadsFor(num_threads, layer_size, kMinLayerPointsPerThread);
-    for (int i = 0; i < threads; ++i) thread_scratch_[i].candidates.clear();
+    // (every thread's emptied, with room for all of the last layer's
+    // candidates, and for those of a point whose directions cancel:
+    // penetration_internal.h)
+    ClearForAnyShare(std::span<ThreadScratch>(thread_scratch_), &ThreadScratch::candidates,
+                     max_degree_);
     // each point of the layer from its neighbours of earlier layers; a
     // point that gets a value lists its neighbours without one (those of
     // this layer too: they stay without one if their directions cancel)

@@ -11,6 +11,7 @@
 #include <cstdint>
 #include <limits>
 #include <numeric>
+#include <span>
 
 #include "collision/penetration.h"
 #include "collision/penetration_internal.h"
@@ -72,6 +73,8 @@ void PenetrationSolver::HashSurfaces(std::span<const CollisionObject> objects, b
                       /*hash_and_normals=*/options_.method == DepthMethod::kConsistent, cell_size_);
   const int threads = ThreadsFor(options_.num_threads, num_triangles, 128);
   if (static_cast<int>(thread_scratch_.size()) < threads) thread_scratch_.resize(threads);
+  // (any thread may make the largest surface: penetration_internal.h)
+  ReserveLikeLargest(std::span<ThreadScratch>(thread_scratch_), &ThreadScratch::faces);
   // consecutive objects to a thread: their entries (and small groups)
   // are neighbours, and two threads writing either side of a cache line
   // would pass it back and forth; a few grabs per thread still balance

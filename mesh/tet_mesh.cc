@@ -459,6 +459,8 @@ TetMesh TetMesh::Build(RawMesh raw, const TetMeshOptions& options) {
   for (int v = 0; v < num_vertices; ++v) {
     std::sort(mesh.adjacency_.begin() + mesh.adjacency_offsets_[v],
               mesh.adjacency_.begin() + mesh.adjacency_offsets_[v + 1]);
+    mesh.max_degree_ =
+        std::max(mesh.max_degree_, mesh.adjacency_offsets_[v + 1] - mesh.adjacency_offsets_[v]);
   }
   // tetrahedra and surface triangles at each vertex, ascending
   GroupByKey(

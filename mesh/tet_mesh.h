@@ -95,6 +95,8 @@ class TetMesh {
   // adjacency()[adjacency_offsets()[v] .. adjacency_offsets()[v+1]), ascending.
   const std::vector<int>& adjacency_offsets() const { return adjacency_offsets_; }  // #V+1
   const std::vector<int>& adjacency() const { return adjacency_; }                  // 2#E
+  // The most neighbours a vertex has (0 without edges).
+  int max_degree() const { return max_degree_; }
   // Tetrahedra incident to each vertex, same compressed layout.
   const std::vector<int>& vertex_tet_offsets() const { return vertex_tet_offsets_; }  // #V+1
   const std::vector<int>& vertex_tets() const { return vertex_tets_; }                // 4#T
@@ -153,6 +155,7 @@ class TetMesh {
   Edges edges_;
   std::vector<int> adjacency_offsets_;
   std::vector<int> adjacency_;
+  int max_degree_ = 0;
   std::vector<int> vertex_tet_offsets_;
   std::vector<int> vertex_tets_;
   std::vector<int> vertex_triangle_offsets_;

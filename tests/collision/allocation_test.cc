@@ -3,7 +3,9 @@
 // test binary is counted.
 
 #include <gtest/gtest.h>
+#include <omp.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cstdlib>
 #include <new>
@@ -34,16 +36,35 @@ void* operator new(std::size_t size) {
 namespace tetcosim {
 namespace {
 
+// solve(), with OpenMP's parallel regions made inactive if `whole`
+// (omp_set_max_active_levels(0)): a solver for two threads then runs every
+// loop on the calling thread alone, with its buffers for two. That is the
+// largest share of the work a thread can get, made certain; shared by two
+// threads, the shares vary from solve to solve. (Stage 2 lists a point's
+// neighbours inside as candidates and takes them back when the point is
+// not a border point: a thread's list can briefly hold more than all the
+// points' together.)
+template <typename Solve>
+void SolveWholeOnOneThreadIf(bool whole, const Solve& solve) {
+  const int max_active_levels = omp_get_max_active_levels();
+  if (whole) omp_set_max_active_levels(0);
+  solve();
+  omp_set_max_active_levels(max_active_levels);
+}
+
 // Two overlapping cubes, a ball enclosed in one (closest-feature
 // fallback) and a coarse rigid slab under them (triangles too large to
 // hash: their box tree): after two solves, further solves of the same
 // scene allocate nothing, with either method, at the default cell size
 // and at 2 mm cells (where the slab's tetrahedra are too large to search
-// cell by cell: the coarser vertex grid). One thread: on several, a
-// thread's share of the work varies from solve to solve, and its buffers
-// grow until they hold its largest share. The same with the slab fixed
+// cell by cell: the coarser vertex grid). The same with the slab fixed
 // (CollisionObject::fixed): what is kept of it is kept on the first solve;
-// and with it moving with a frame (CollisionObject::frame).
+// and with it moving with a frame (CollisionObject::frame). On one thread
+// and on two, where the work falls to the threads differently from solve
+// to solve (there 200 solves, every other one taken whole by one thread:
+// SolveWholeOnOneThreadIf): a thread's buffers are made ready for any share
+// before each loop (penetration_internal.h), else a buffer grew whenever a
+// thread's share was its largest yet, now and then for hundreds of solves.
 TEST(Allocation, WarmSolvesAllocateNothing) {
   testing::TestScene scene;
   scene.Add("box:size=0.05:res=6", {0, 0, 0});
@@ -53,18 +74,24 @@ TEST(Allocation, WarmSolvesAllocateNothing) {
   const Positions slab_start = *scene.positions[slab];
   RigidFrame frame;
   enum Slab { kPlain, kFixed, kFramed };
-  for (const auto& [method, cell_size, kept] : {std::tuple{DepthMethod::kConsistent, 0.0, kPlain},
-                                                std::tuple{DepthMethod::kClosest, 0.0, kPlain},
-                                                std::tuple{DepthMethod::kConsistent, 0.002, kPlain},
-                                                std::tuple{DepthMethod::kConsistent, 0.0, kFixed},
-                                                std::tuple{DepthMethod::kClosest, 0.0, kFramed}}) {
+  for (const auto& [method, cell_size, kept, threads] :
+       {std::tuple{DepthMethod::kConsistent, 0.0, kPlain, 1},
+        std::tuple{DepthMethod::kClosest, 0.0, kPlain, 1},
+        std::tuple{DepthMethod::kConsistent, 0.002, kPlain, 1},
+        std::tuple{DepthMethod::kConsistent, 0.0, kFixed, 1},
+        std::tuple{DepthMethod::kClosest, 0.0, kFramed, 1},
+        std::tuple{DepthMethod::kConsistent, 0.0, kPlain, 2},
+        std::tuple{DepthMethod::kClosest, 0.0, kPlain, 2},
+        std::tuple{DepthMethod::kConsistent, 0.002, kPlain, 2},
+        std::tuple{DepthMethod::kConsistent, 0.0, kFixed, 2},
+        std::tuple{DepthMethod::kClosest, 0.0, kFramed, 2}}) {
     // (the slab: what is kept of it, kept once)
     scene.objects[slab].fixed = kept == kFixed;
     scene.objects[slab].frame = kept == kFramed ? &frame : nullptr;
     PenetrationOptions options;
     options.method = method;
     options.cell_size = cell_size;
-    options.num_threads = 1;
+    options.num_threads = threads;
     PenetrationSolver solver(options);
     // (framed: the slab moves up a little every solve)
     // (kept copied in: clang before 16 cannot capture a structured binding)
@@ -75,10 +102,13 @@ TEST(Allocation, WarmSolvesAllocateNothing) {
     };
     solve(0);
     solve(1);
+    // (on two threads, three configurations in turn, shared and whole)
     const long before = allocations.load();
-    for (int k = 2; k < 5; ++k) solve(k);
+    for (int k = 2; k < (threads == 1 ? 5 : 202); ++k) {
+      SolveWholeOnOneThreadIf(threads == 2 && k % 2 == 1, [&] { solve(2 + k % 3); });
+    }
     EXPECT_EQ(allocations.load() - before, 0)
-        << DepthMethodName(method) << " " << cell_size << " " << kept;
+        << DepthMethodName(method) << " " << cell_size << " " << kept << " " << threads;
     EXPECT_EQ(solver.stats().fixed_objects, kept == kFixed ? 1 : 0);
     EXPECT_EQ(solver.stats().framed_objects, kept == kFramed ? 1 : 0);
     EXPECT_GT(solver.results().size(), 100u);
@@ -92,26 +122,59 @@ TEST(Allocation, WarmSolvesAllocateNothing) {
 // checks the broad phase cuts into strips (from 512 objects), settling over
 // five solves, its neighbours at different rates (so that contacts deepen
 // and buffers may grow): solved over those five steps again, it allocates
-// nothing.
+// nothing, on one thread and on two (there 100 times, every other one
+// taken whole by one thread).
 TEST(Allocation, WarmSolvesOfAPileInStripsAllocateNothing) {
   testing::TestScene scene = testing::SphereLayer(24, 13);
   std::vector<Positions> start;
   for (const auto& x : scene.positions) start.push_back(*x);
-  PenetrationOptions options;
-  options.num_threads = 1;
-  PenetrationSolver solver(options);
-  auto solve = [&](int k) {  // (sphere o down by k x 0.1, 0.2 or 0.3 mm, by o % 3)
-    for (size_t o = 0; o < start.size(); ++o) {
-      *scene.positions[o] = start[o];
-      scene.positions[o]->col(2).array() -= 1e-4 * k * static_cast<double>(1 + o % 3);
+  for (int threads : {1, 2}) {
+    PenetrationOptions options;
+    options.num_threads = threads;
+    PenetrationSolver solver(options);
+    auto solve = [&](int k) {  // (sphere o down by k x 0.1, 0.2 or 0.3 mm, by o % 3)
+      for (size_t o = 0; o < start.size(); ++o) {
+        *scene.positions[o] = start[o];
+        scene.positions[o]->col(2).array() -= 1e-4 * k * static_cast<double>(1 + o % 3);
+      }
+      solver.Solve(scene.objects);
+    };
+    for (int k = 0; k < 5; ++k) solve(k);
+    // (on two threads, the five steps twenty times, shared and whole)
+    const long before = allocations.load();
+    for (int k = 0; k < (threads == 1 ? 5 : 100); ++k) {
+      SolveWholeOnOneThreadIf(threads == 2 && k % 2 == 1, [&] { solve(k % 5); });
     }
-    solver.Solve(scene.objects);
-  };
-  for (int k = 0; k < 5; ++k) solve(k);
-  const long before = allocations.load();
-  for (int k = 0; k < 5; ++k) solve(k);
-  EXPECT_EQ(allocations.load() - before, 0);
-  EXPECT_GT(solver.results().size(), 1000u);
+    EXPECT_EQ(allocations.load() - before, 0) << threads << " threads";
+    EXPECT_GT(solver.results().size(), 1000u);
+  }
+}
+
+// The crowded scenes of the determinism tests (CrowdedScene: a box with 14
+// bodies of four shapes in and around it, some rigid, and a bar folded
+// into itself with self-collision), with either method on two threads:
+// after two solves, 200 more allocate nothing, every other one taken whole
+// by one thread (SolveWholeOnOneThreadIf).
+TEST(Allocation, WarmSolvesOfCrowdedScenesOnTwoThreadsAllocateNothing) {
+  for (DepthMethod method : {DepthMethod::kConsistent, DepthMethod::kClosest}) {
+    for (int trial = 0; trial < 2; ++trial) {
+      testing::TestScene scene = testing::CrowdedScene(trial);
+      PenetrationOptions options;
+      options.method = method;
+      options.num_threads = 2;
+      PenetrationSolver solver(options);
+      for (int k = 0; k < 2; ++k) solver.Solve(scene.objects);
+      const long before = allocations.load();
+      for (int k = 0; k < 200; ++k) {
+        SolveWholeOnOneThreadIf(k % 2 == 1, [&] { solver.Solve(scene.objects); });
+      }
+      EXPECT_EQ(allocations.load() - before, 0) << DepthMethodName(method) << " trial " << trial;
+      EXPECT_GT(solver.results().size(), 50u);
+      EXPECT_TRUE(std::any_of(solver.results().begin(), solver.results().end(),
+                              [](const PenetrationResult& r) { return r.object == r.penetrated; }))
+          << "the bar is folded into itself";
+    }
+  }
 }
 
 }  // namespace

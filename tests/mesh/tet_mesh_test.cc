@@ -7,6 +7,7 @@
 #include <random>
 #include <set>
 #include <utility>
+#include <vector>
 
 #include "mesh/error.h"
 #include "mesh/generators.h"
@@ -111,6 +112,14 @@ TEST(TetMesh, AdjacencyMatchesEdgesAndIsSymmetric) {
     EXPECT_TRUE(adjacent(mesh.edges()(e, 0), mesh.edges()(e, 1)));
     EXPECT_TRUE(adjacent(mesh.edges()(e, 1), mesh.edges()(e, 0)));
   }
+  // the most neighbours of a vertex, counted from the edges
+  std::vector<int> degree(mesh.num_vertices(), 0);
+  int most = 0;
+  for (Eigen::Index e = 0; e < mesh.edges().rows(); ++e) {
+    for (int k = 0; k < 2; ++k) most = std::max(most, ++degree[mesh.edges()(e, k)]);
+  }
+  EXPECT_GT(most, 4);
+  EXPECT_EQ(mesh.max_degree(), most);
   // vertex-tet incidence lists each tetrahedron at its four vertices
   for (int v = 0; v < mesh.num_vertices(); ++v) {
     for (int i = mesh.vertex_tet_offsets()[v]; i < mesh.vertex_tet_offsets()[v + 1]; ++i) {
