@@ -60,7 +60,7 @@ CLI::Validator StepNumber() {
       "STEPS", "STEPS");
 }
 
-long StepCount(double seconds, double dt, const std::string& option) {
+long StepCount(double seconds, double dt, const std::string& option, bool warn) {
   const std::optional<long> steps = WholeSteps(seconds, dt);
   if (!steps) {
     char message[256];
@@ -69,7 +69,15 @@ long StepCount(double seconds, double dt, const std::string& option) {
                   option.c_str(), seconds, std::round(seconds / dt), dt, kMaxWholeSteps);
     throw Error(message);
   }
-  return std::max(1L, *steps);
+  const long count = std::max(1L, *steps);
+  const double simulated = static_cast<double>(count) * dt;
+  if (warn && std::abs(simulated - seconds) > 1e-6 * dt) {
+    std::fprintf(stderr,
+                 "tetcosim: warning: %s %g s is not a whole number of %g s steps; running %ld "
+                 "step%s (%g s)\n",
+                 option.c_str(), seconds, dt, count, count == 1 ? "" : "s", simulated);
+  }
+  return count;
 }
 
 void PrintMeshWarnings(const TetMesh& mesh) {

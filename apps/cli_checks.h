@@ -26,8 +26,9 @@ CLI::Validator StepNumber();
 
 // WholeSteps (mujoco_bridge/world.h), at least 1, for seconds > 0 that a
 // command-line option gave: Error, naming `option`, when there are more than
-// 2^53.
-long StepCount(double seconds, double dt, const std::string& option);
+// 2^53. When those steps do not make `seconds` (to a millionth of a step)
+// and `warn`, a warning on stderr says what will run instead.
+long StepCount(double seconds, double dt, const std::string& option, bool warn = true);
 
 // Prints a mesh's warnings (TetMesh::warnings), each as "tetcosim: warning:
 // <its source>: ...", to stderr.

@@ -101,7 +101,9 @@ RunRow RunOne(const CompareOptions& options, const std::string& method, double d
   // a bad scene is reported here, at the first run, before it writes anything
   std::unique_ptr<World> world = World::Load(options.scene, world_options);
   if (is_first_run) PrintLoadWarnings(*world);  // (the same for every run)
-  const long steps = StepCount(options.duration, world->timestep(), "--duration");
+  // (told once per time step: at its first method)
+  const long steps = StepCount(options.duration, world->timestep(), "--duration",
+                               /*warn=*/method == options.methods.front());
   const std::filesystem::path folder = out / row.folder;
   std::filesystem::create_directories(folder);
   RolloutMetrics metrics(*world);

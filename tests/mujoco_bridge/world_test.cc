@@ -1903,6 +1903,34 @@ TEST(Commands, BadNumbersAreClearErrors) {
   EXPECT_FALSE(std::filesystem::exists(dir.path() / "out" / "steps.csv"));
 }
 
+// A duration that is not a whole number of time steps runs the nearest
+// whole number (at least one), and says so; a whole number runs silently.
+TEST(Commands, ADurationOfPartStepsIsRoundedWithAWarning) {
+  TempDir dir;
+  const std::string run = std::string(TETCOSIM_BINARY) + " run " + TETCOSIM_SOURCE_DIR +
+                          "/models/scenes/cube_on_box.xml --out " + (dir.path() / "out").string();
+  const std::pair<std::string, std::string> cases[] = {
+      // (cube_on_box's time step: 2 ms)
+      {" --duration 0.0105",
+       "--duration 0.0105 s is not a whole number of 0.002 s steps; running "
+       "5 steps (0.01 s)"},
+      {" --duration 0.05 --timestep 0.5",
+       "--duration 0.05 s is not a whole number of 0.5 s steps; running 1 step (0.5 s)"},
+      {" --duration 0.3 --timestep 0.001", ""},
+      {" --duration 0.01", ""},
+  };
+  for (const auto& [arguments, warning] : cases) {
+    const auto [status, text] = RunShell(run + arguments + " 2>&1 > /dev/null");
+    EXPECT_EQ(status, 0) << arguments << "\n" << text;
+    if (warning.empty()) {
+      EXPECT_EQ(text.find("warning"), std::string::npos) << arguments << "\n" << text;
+    } else {
+      EXPECT_NE(text.find("tetcosim: warning: " + warning), std::string::npos) << arguments << "\n"
+                                                                               << text;
+    }
+  }
+}
+
 // The proxies made for narrow geoms (<contact autoproxy>) are told: by
 // info (text and JSON), check and run.
 TEST(Commands, ProxiesMadeForNarrowGeomsAreListed) {
