@@ -81,7 +81,7 @@ void SolveWholeOnOneThreadIf(bool whole, const Solve& solve) {
 // (CollisionObject::fixed): what is kept of it is kept on the first solve;
 // and with it moving with a frame (CollisionObject::frame). On one thread
 // and on two, where the work falls to the threads differently from solve
-// to solve (there 200 solves, every other one taken whole by one thread:
+// to solve (there 100 solves, every other one taken whole by one thread:
 // SolveWholeOnOneThreadIf): a thread's buffers are made ready for any share
 // before each loop (penetration_internal.h), else a buffer grew whenever a
 // thread's share was its largest yet, now and then for hundreds of solves.
@@ -125,7 +125,7 @@ TEST(Allocation, WarmSolvesAllocateNothing) {
     for (int k = 0; k < 2; ++k) SolveWholeOnOneThreadIf(threads == 2, [&] { solve(k); });
     // (on two threads, three configurations in turn, shared and whole)
     const long before = allocations.load();
-    for (int k = 2; k < (threads == 1 ? 5 : 202); ++k) {
+    for (int k = 2; k < (threads == 1 ? 5 : 102); ++k) {
       SolveWholeOnOneThreadIf(threads == 2 && k % 2 == 1, [&] { solve(2 + k % 3); });
     }
     EXPECT_EQ(allocations.load() - before, 0)
@@ -143,7 +143,7 @@ TEST(Allocation, WarmSolvesAllocateNothing) {
 // checks the broad phase cuts into strips (from 512 objects), settling over
 // five solves, its neighbours at different rates (so that contacts deepen
 // and buffers may grow): solved over those five steps again, it allocates
-// nothing, on one thread and on two (there 100 times, every other one
+// nothing, on one thread and on two (there 50 times, every other one
 // taken whole by one thread).
 TEST(Allocation, WarmSolvesOfAPileInStripsAllocateNothing) {
   testing::TestScene scene = testing::SphereLayer(24, 13);
@@ -161,9 +161,9 @@ TEST(Allocation, WarmSolvesOfAPileInStripsAllocateNothing) {
       solver.Solve(scene.objects);
     };
     for (int k = 0; k < 5; ++k) SolveWholeOnOneThreadIf(threads == 2, [&] { solve(k); });
-    // (on two threads, the five steps twenty times, shared and whole)
+    // (on two threads, the five steps ten times, shared and whole)
     const long before = allocations.load();
-    for (int k = 0; k < (threads == 1 ? 5 : 100); ++k) {
+    for (int k = 0; k < (threads == 1 ? 5 : 50); ++k) {
       SolveWholeOnOneThreadIf(threads == 2 && k % 2 == 1, [&] { solve(k % 5); });
     }
     EXPECT_EQ(allocations.load() - before, 0) << threads << " threads";
@@ -174,7 +174,7 @@ TEST(Allocation, WarmSolvesOfAPileInStripsAllocateNothing) {
 // The crowded scenes of the determinism tests (CrowdedScene: a box with 14
 // bodies of four shapes in and around it, some rigid, and a bar folded
 // into itself with self-collision), with either method on two threads:
-// after two solves, 200 more allocate nothing, every other one taken whole
+// after two solves, 100 more allocate nothing, every other one taken whole
 // by one thread (SolveWholeOnOneThreadIf). Warmed whole (the other thread
 // starts empty), and warmed shared (the first whole solve gives a thread
 // more than it has ever held: all the points, and the candidates a point
@@ -192,7 +192,7 @@ TEST(Allocation, WarmSolvesOfCrowdedScenesOnTwoThreadsAllocateNothing) {
         SolveWholeOnOneThreadIf(warm_whole, [&] { solver.Solve(scene.objects); });
       }
       const long before = allocations.load();
-      for (int k = 0; k < 200; ++k) {
+      for (int k = 0; k < 100; ++k) {
         SolveWholeOnOneThreadIf(k % 2 == 1, [&] { solver.Solve(scene.objects); });
       }
       EXPECT_EQ(allocations.load() - before, 0)
