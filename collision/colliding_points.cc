@@ -358,14 +358,7 @@ int CollidingPoints::BeginSearch(int num_threads) {
     most_gathered = std::max(most_gathered, thread.gathered.vertex.size());
   }
   for (ThreadScratch& thread : scratch) {
-    HashedVertices& gathered = thread.gathered;
-    if (gathered.vertex.size() < most_gathered) {
-      for (std::vector<double>* values : {&gathered.x, &gathered.y, &gathered.z}) {
-        values->resize(most_gathered);
-      }
-      gathered.vertex.resize(most_gathered);
-      gathered.object.resize(most_gathered);
-    }
+    if (thread.gathered.vertex.size() < most_gathered) thread.gathered.Resize(most_gathered);
     thread.tet_tests = 0;
   }
   if (!any_deformable) return 0;
@@ -485,12 +478,7 @@ void CollidingPoints::SearchChunk(int searched) {
       const int a = object_of(e);
       if (a < 0) return;
       if (num_gathered + kSimdPadding >= static_cast<int>(gathered.vertex.size())) {
-        const int size = 2 * (num_gathered + kSimdPadding + 1);
-        for (std::vector<double>* values : {&gathered.x, &gathered.y, &gathered.z}) {
-          values->resize(size);
-        }
-        gathered.vertex.resize(size);
-        gathered.object.resize(size);
+        gathered.Resize(2 * (num_gathered + kSimdPadding + 1));
       }
       gathered.x[num_gathered] = hashed_.x[e];
       gathered.y[num_gathered] = hashed_.y[e];

@@ -23,6 +23,7 @@
 
 #include <Eigen/Core>
 #include <array>
+#include <cstddef>
 #include <cstdint>
 #include <span>
 #include <vector>
@@ -125,6 +126,13 @@ class CollidingPoints {
     std::vector<double> x, y, z;  // position
     std::vector<int> vertex;      // global vertex number
     std::vector<int> object;      // its object
+    // every array to n entries (a chunk's gathered candidates: their size
+    // is their room, kSimdPadding included)
+    void Resize(std::size_t n) {
+      for (std::vector<double>* values : {&x, &y, &z}) values->resize(n);
+      vertex.resize(n);
+      object.resize(n);
+    }
   };
   // a tetrahedron of object B being searched: its corners and box, and its
   // barycentric coordinates once a vertex in its box needs them
