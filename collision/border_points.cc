@@ -18,6 +18,7 @@
 #include "collision/simd4.h"
 #include "mesh/group_by_key.h"
 #include "mesh/parallel_for.h"
+#include "mesh/vector_room.h"
 
 namespace tetcosim {
 namespace {
@@ -63,10 +64,10 @@ void PenetrationSolver::ComputeBorderPoints(std::span<const CollisionObject> obj
   Clock::time_point start = Clock::now();
   const int num_hits = static_cast<int>(colliding_.hits().size());
   const int num_threads = std::max(1, options_.num_threads);
-  depth_.resize(num_hits);
-  direction_.resize(num_hits);
-  source_.resize(num_hits);
-  layer_.assign(num_hits, -1);
+  ResizeWithRoom(depth_, num_hits);
+  ResizeWithRoom(direction_, num_hits);
+  ResizeWithRoom(source_, num_hits);
+  AssignWithRoom(layer_, num_hits, -1);
   // a crossing closer than this to p means p is on the surface: depth 0
   const double on_surface = 1e-9 * length_scale_;
   // per thread: the query in which each triangle entry was last tested

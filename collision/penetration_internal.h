@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "mesh/tet_mesh.h"
+#include "mesh/vector_room.h"
 
 namespace tetcosim {
 
@@ -111,7 +112,7 @@ void ClearForAnyShare(std::span<Scratch> scratch, std::vector<T> Scratch::*buffe
   for (const Scratch& thread : scratch) all += (thread.*buffer).size();
   for (Scratch& thread : scratch) {
     (thread.*buffer).clear();
-    (thread.*buffer).reserve(all);
+    ReserveWithRoom(thread.*buffer, all);
   }
 }
 // ReserveLikeLargest: `buffer` holds one item's work at a time (an object's

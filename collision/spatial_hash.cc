@@ -4,9 +4,11 @@
 #include <bit>
 #include <cassert>
 #include <cmath>
+#include <limits>
 
 #include "collision/radix_sort.h"
 #include "mesh/parallel_for.h"
+#include "mesh/vector_room.h"
 
 namespace tetcosim {
 
@@ -28,7 +30,11 @@ void SpatialHash::Reset(double cell_size, int num_items) {
   inverse_cell_size_ = 1.0 / cell_size;
   int wanted = 2 * std::max(num_items, 16) + 1;
   if (static_cast<int>(table_size_) < wanted) {
-    table_size_ = static_cast<std::uint64_t>(NextPrime(wanted));
+    // (growing, at least twice the size: a count that creeps up from
+    // solve to solve then reallocates a few times, not at each new high)
+    const long grown = std::max<long>(wanted, 2 * static_cast<long>(table_size_) + 1);
+    table_size_ = static_cast<std::uint64_t>(
+        NextPrime(static_cast<int>(std::min<long>(grown, std::numeric_limits<int>::max() / 2))));
     modulo_magic_ = UINT64_MAX / table_size_ + 1;
     slots_.assign(table_size_, Slot{0, 0, 0});
     round_ = 0;
@@ -62,8 +68,8 @@ void SpatialHash::Build() {
 }
 
 void SpatialHash::ResizeInsertions(int n) {
-  inserted_bucket_.resize(n);
-  inserted_item_.resize(n);
+  ResizeWithRoom(inserted_bucket_, n);
+  ResizeWithRoom(inserted_item_, n);
 }
 
 void SpatialHash::BuildInsertions(int num_threads, int min_sorted) {

@@ -4,9 +4,11 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <optional>
 #include <utility>
 
 #include "mesh/parallel_for.h"
+#include "mesh/vector_room.h"
 
 namespace tetcosim {
 namespace {
@@ -46,7 +48,8 @@ struct Coupling {
       if (dof_b[i] >= 0) y.segment<3>(dof_b[i]) -= w[i] * g;
     }
     if (rigid_jacobian) {
-      y.segment(rigid_offset, rigid_jacobian->cols()) +=
+      // noalias: J^T g straight into y (a temporary otherwise, allocated)
+      y.segment(rigid_offset, rigid_jacobian->cols()).noalias() +=
           rigid_sign * rigid_jacobian->transpose() * g;
     }
   }
@@ -61,6 +64,11 @@ struct Slave {
   int tree = -1;
 };
 
+// the vectors ConjugateGradients works in
+struct CgVectors {
+  Eigen::VectorXd z, p, q;
+};
+
 // Filtered, preconditioned conjugate gradients on A x = b from x (Baraff
 // and Witkin 1998: the filter zeroes the pinned degrees of freedom, whose
 // values x holds), until the filtered residual r is at most `threshold` or
@@ -71,9 +79,14 @@ template <typename Multiply, typename Precondition, typename Filter>
 int ConjugateGradients(const Multiply& multiply, const Precondition& precondition,
                        const Filter& filter, const Eigen::VectorXd& b, double threshold,
                        int max_iterations, Eigen::VectorXd& x, Eigen::VectorXd& Ax,
-                       Eigen::VectorXd& r, bool Ax_given = false) {
+                       Eigen::VectorXd& r, CgVectors& vectors, bool Ax_given = false) {
   const Eigen::Index n = b.size();
-  Eigen::VectorXd z(n), p(n), q(n);
+  Eigen::VectorXd& z = vectors.z;
+  Eigen::VectorXd& p = vectors.p;
+  Eigen::VectorXd& q = vectors.q;
+  z.resize(n);
+  p.resize(n);
+  q.resize(n);
   if (!Ax_given) multiply(x, Ax);
   r = b - Ax;
   filter(r);
@@ -129,10 +142,14 @@ void MultiplyVerticesToRigid(const std::vector<const Coupling*>& couplings,
       if (coupling->dof_b[i] >= 0) u -= coupling->w[i] * y.segment<3>(coupling->dof_b[i]);
     }
     const auto& J = *coupling->rigid_jacobian;
-    out.segment(coupling->rigid_offset - n_deformable, J.cols()) +=
+    out.segment(coupling->rigid_offset - n_deformable, J.cols()).noalias() +=
         coupling->rigid_sign * J.transpose() * (coupling->gain * u);
   }
 }
+
+// a RigidConstraint's rows x rows matrix (held inline: no heap storage)
+using ConstraintMatrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0,
+                                       kMaxConstraintRows, kMaxConstraintRows>;
 
 // Coulomb's limit on the friction of a contact whose force on A is `force`,
 // mu f_n (f_n its normal part, or 0 where it pulls)
@@ -159,8 +176,8 @@ enum class ConeZone { kBottom, kMiddle, kTop };
 // J a - aref = r, as the rigid solver's: with u = cone r, N = u_0 and T the
 // norm of the rest, the top (no force) where N >= mu T, the bottom (each
 // row quadratic) where mu N + T <= 0
-ConeZone Zone(const RigidConstraint& constraint, const Eigen::VectorXd& r) {
-  const Eigen::VectorXd u = constraint.cone.cwiseProduct(r);
+ConeZone Zone(const RigidConstraint& constraint, const ConstraintVector& r) {
+  const ConstraintVector u = constraint.cone.cwiseProduct(r);
   const double mu = constraint.cone[0];
   const double normal = u[0];
   const double tangential = u.tail(u.size() - 1).norm();
@@ -173,24 +190,24 @@ ConeZone Zone(const RigidConstraint& constraint, const Eigen::VectorXd& r) {
 
 // An elliptic cone contact's force in the middle zone at r (coupled_step.h,
 // RigidConstraint), and H = -df/dr there
-void MiddleZoneForce(const RigidConstraint& constraint, const Eigen::VectorXd& r,
-                     Eigen::VectorXd& force, Eigen::MatrixXd& hessian) {
+void MiddleZoneForce(const RigidConstraint& constraint, const ConstraintVector& r,
+                     ConstraintVector& force, ConstraintMatrix& hessian) {
   const Eigen::Index n = r.size();
-  const Eigen::VectorXd& scale = constraint.cone;
+  const ConstraintVector& scale = constraint.cone;
   const double mu = scale[0];
-  const Eigen::VectorXd u = scale.cwiseProduct(r);
-  const Eigen::VectorXd tangent = u.tail(n - 1);
+  const ConstraintVector u = scale.cwiseProduct(r);
+  const ConstraintVector tangent = u.tail(n - 1);
   const double tangential = tangent.norm();
   const double gap = u[0] - mu * tangential;  // N - mu T (< 0 here)
   const double dm = constraint.mass[0] / (mu * mu * (1.0 + mu * mu));
   // the gradient of N - mu T in u, and the cost's second derivative in u
-  Eigen::VectorXd gradient(n);
+  ConstraintVector gradient(n);
   gradient[0] = 1.0;
   gradient.tail(n - 1) = -mu / tangential * tangent;
-  Eigen::MatrixXd second = dm * gradient * gradient.transpose();
+  ConstraintMatrix second = dm * gradient * gradient.transpose();
   second.bottomRightCorner(n - 1, n - 1) -=
       dm * gap * mu / tangential *
-      (Eigen::MatrixXd::Identity(n - 1, n - 1) -
+      (ConstraintMatrix::Identity(n - 1, n - 1) -
        tangent * tangent.transpose() / (tangential * tangential));
   force = -dm * gap * scale.cwiseProduct(gradient);
   hessian = scale.asDiagonal() * second * scale.asDiagonal();
@@ -204,7 +221,7 @@ struct ConstraintState {
   int sliding = 0;
   bool operator==(const ConstraintState&) const = default;
 };
-ConstraintState StateAt(const RigidConstraint& constraint, const Eigen::VectorXd& r) {
+ConstraintState StateAt(const RigidConstraint& constraint, const ConstraintVector& r) {
   switch (constraint.kind) {
     case RigidConstraint::Kind::kEquality:
       return {};
@@ -219,20 +236,114 @@ ConstraintState StateAt(const RigidConstraint& constraint, const Eigen::VectorXd
   return {.released = zone == ConeZone::kTop, .sliding = zone == ConeZone::kMiddle ? 1 : 0};
 }
 
+// Each held constraint's force over the step, dt f = g - H (J v+ - J v -
+// dt aref) (r = J a - aref; held in a row's quadratic state, or in a
+// cone's bottom zone: H = D, g = 0; sliding in a cone's middle zone:
+// linearized about r_0, where its force is f_0, g = dt (f_0 + H r_0))
+struct ConstraintLaw {
+  ConstraintMatrix hessian;  // H
+  ConstraintVector offset;   // g
+  ConstraintVector force;    // (sliding) f_0
+  ConstraintVector about;    // (sliding) r_0
+  int linearizations = 0;
+  ConstraintState state;
+};
+
+// items.emplace_back(), default-constructed but for the arrays `reuse`
+// moves into it from the last element kept in `spare`, if any
+template <typename T, typename Reuse>
+T& AddReusing(std::vector<T>& items, std::vector<T>& spare, const Reuse& reuse) {
+  T& item = items.emplace_back();
+  if (!spare.empty()) {
+    reuse(spare.back(), item);
+    spare.pop_back();
+  }
+  return item;
+}
+
 }  // namespace
+
+// (StepCoupled's arrays, named as there)
+struct CoupledStepWorkspace::Arrays {
+  std::vector<int> offset, tree_offset;
+  Eigen::VectorXd v, b, delta;
+  std::vector<Eigen::Matrix3d> blocks, body_blocks;
+  std::vector<char> pinned;
+  std::vector<ConstraintLaw> laws;
+  std::vector<int> shared_bodies, threaded_bodies, run_begin;
+  std::vector<Slave> slaves;
+  std::vector<Coupling> couplings;
+  std::vector<ContactLinearization> linear;
+  std::vector<Eigen::Vector3d> contact_rhs, slide;
+  std::vector<FrictionLaw> law;
+  std::vector<char> switches;
+  Eigen::VectorXd carried, momentum, v_new, work, rigid_part, body_rhs, Av_new, r;
+  Eigen::VectorXd impulse, reduced, unit, column, residual;
+  std::vector<const Coupling*> rigid_couplings;
+  std::vector<int> touched;
+  Eigen::LDLT<Eigen::MatrixXd> schur_factor;
+  std::vector<Eigen::LDLT<Eigen::MatrixXd>> tree_factors;
+  Eigen::MatrixXd schur;
+  std::vector<Eigen::MatrixXd> tree_diagonal;
+  std::vector<double> product;  // J^T G of a rigid contact or a carried pin
+  CgVectors cg;
+};
+
+void RigidSystem::Clear() {
+  auto keep = [](auto& items, auto& spare) {
+    for (auto& item : items) spare.push_back(std::move(item));
+    items.clear();
+  };
+  keep(trees, spare_trees_);
+  keep(points, spare_points_);
+  keep(constraints, spare_constraints_);
+  pins.clear();
+}
+
+RigidTree& RigidSystem::AddTree() {
+  return AddReusing(trees, spare_trees_, [](RigidTree& kept, RigidTree& tree) {
+    tree.mass = std::move(kept.mass);
+    tree.velocity = std::move(kept.velocity);
+    tree.impulse = std::move(kept.impulse);
+    tree.velocity_end = std::move(kept.velocity_end);
+  });
+}
+
+RigidPoint& RigidSystem::AddPoint() {
+  return AddReusing(points, spare_points_, [](RigidPoint& kept, RigidPoint& point) {
+    point.jacobian = std::move(kept.jacobian);
+  });
+}
+
+RigidConstraint& RigidSystem::AddConstraint() {
+  return AddReusing(constraints, spare_constraints_,
+                    [](RigidConstraint& kept, RigidConstraint& constraint) {
+                      constraint.jacobian = std::move(kept.jacobian);
+                    });
+}
+
+CoupledStepWorkspace::CoupledStepWorkspace() : arrays_(std::make_unique<Arrays>()) {}
+CoupledStepWorkspace::~CoupledStepWorkspace() = default;
+CoupledStepWorkspace::CoupledStepWorkspace(CoupledStepWorkspace&&) noexcept = default;
+CoupledStepWorkspace& CoupledStepWorkspace::operator=(CoupledStepWorkspace&&) noexcept = default;
 
 CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
                               std::span<ContactPoint> contacts,
                               const ContactSettings& contact_settings, const StepSettings& settings,
-                              RigidSystem* rigid) {
+                              RigidSystem* rigid, CoupledStepWorkspace* workspace) {
   settings.Validate();
+  std::optional<CoupledStepWorkspace> own_workspace;
+  if (workspace == nullptr) workspace = &own_workspace.emplace();
+  CoupledStepWorkspace::Arrays& arrays = workspace->arrays();
   const double dt = settings.dt;
   const int num_bodies = static_cast<int>(bodies.size());
-  std::vector<int> offset(num_bodies + 1, 0);
+  std::vector<int>& offset = arrays.offset;
+  offset.assign(static_cast<size_t>(num_bodies) + 1, 0);
   for (int k = 0; k < num_bodies; ++k) offset[k + 1] = offset[k] + 3 * bodies[k]->num_vertices();
   // the rigid trees' DoFs follow the deformables'
   const int num_trees = rigid ? static_cast<int>(rigid->trees.size()) : 0;
-  std::vector<int> tree_offset(num_trees + 1, offset[num_bodies]);
+  std::vector<int>& tree_offset = arrays.tree_offset;
+  tree_offset.assign(static_cast<size_t>(num_trees) + 1, offset[num_bodies]);
   for (int t = 0; t < num_trees; ++t) {
     tree_offset[t + 1] = tree_offset[t] + static_cast<int>(rigid->trees[t].velocity.size());
   }
@@ -240,25 +351,20 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
 
   // bodies' own systems and current velocities; the 3 x 3 diagonal blocks of
   // the system, per vertex, for a block-Jacobi preconditioner
-  Eigen::VectorXd v(n), b(n);
-  std::vector<Eigen::Matrix3d> blocks(static_cast<size_t>(offset[num_bodies] / 3));
-  std::vector<char> pinned(n, 0);
-  Eigen::VectorXd delta = Eigen::VectorXd::Zero(n);
+  Eigen::VectorXd& v = arrays.v;
+  Eigen::VectorXd& b = arrays.b;
+  v.resize(n);
+  b.resize(n);
+  std::vector<Eigen::Matrix3d>& blocks = arrays.blocks;
+  blocks.resize(static_cast<size_t>(offset[num_bodies] / 3));
+  std::vector<char>& pinned = arrays.pinned;
+  pinned.assign(static_cast<size_t>(n), 0);
+  Eigen::VectorXd& delta = arrays.delta;
+  delta.setZero(n);
   // a rigid tree: M q+ = M q + impulse + its contacts' and constraints' share
-  // Each held constraint's force over the step, dt f = g - H (J v+ - J v -
-  // dt aref) (r = J a - aref; held in a row's quadratic state, or in a
-  // cone's bottom zone: H = D, g = 0; sliding in a cone's middle zone:
-  // linearized about r_0, where its force is f_0, g = dt (f_0 + H r_0))
-  struct ConstraintLaw {
-    Eigen::MatrixXd hessian;  // H
-    Eigen::VectorXd offset;   // g
-    Eigen::VectorXd force;    // (sliding) f_0
-    Eigen::VectorXd about;    // (sliding) r_0
-    int linearizations = 0;
-    ConstraintState state;
-  };
   const size_t num_constraints = rigid != nullptr ? rigid->constraints.size() : 0;
-  std::vector<ConstraintLaw> laws(num_constraints);
+  std::vector<ConstraintLaw>& laws = arrays.laws;
+  AssignWithRoom(laws, num_constraints, ConstraintLaw{});
   auto hold = [&](size_t k) {
     RigidConstraint& constraint = rigid->constraints[k];
     laws[k].hessian = constraint.mass.asDiagonal();
@@ -267,27 +373,28 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   };
   // an elliptic cone's law linearized about r, given its force and Hessian
   // there (MiddleZoneForce; the caller has them: Newton's check needs them too)
-  auto slide_about = [&](size_t k, const Eigen::VectorXd& r, Eigen::VectorXd force,
-                         Eigen::MatrixXd hessian) {
+  auto slide_about = [&](size_t k, const ConstraintVector& r, const ConstraintVector& force,
+                         const ConstraintMatrix& hessian) {
     ConstraintLaw& law = laws[k];
-    law.force = std::move(force);
-    law.hessian = std::move(hessian);
+    law.force = force;
+    law.hessian = hessian;
     law.offset = dt * (law.force + law.hessian * r);
     law.about = r;
   };
   // constraint k in `state` at r (StateAt): released; held; sliding, a
   // friction loss row with H = 0, g = dt f, a cone linearized about r
-  auto enter = [&](size_t k, ConstraintState state, const Eigen::VectorXd& r) {
+  auto enter = [&](size_t k, ConstraintState state, const ConstraintVector& r) {
     RigidConstraint& constraint = rigid->constraints[k];
     hold(k);
     if (constraint.kind == RigidConstraint::Kind::kFrictionLoss && state.sliding != 0) {
       laws[k].hessian.setZero(1, 1);
-      laws[k].offset = Eigen::VectorXd::Constant(1, -dt * state.sliding * constraint.friction_loss);
+      laws[k].offset =
+          ConstraintVector::Constant(1, -dt * state.sliding * constraint.friction_loss);
     } else if (state.sliding != 0) {
-      Eigen::VectorXd force;
-      Eigen::MatrixXd hessian;
+      ConstraintVector force;
+      ConstraintMatrix hessian;
       MiddleZoneForce(constraint, r, force, hessian);
-      slide_about(k, r, std::move(force), std::move(hessian));
+      slide_about(k, r, force, hessian);
     }
     constraint.released = state.released;
     constraint.sliding = state.sliding != 0;
@@ -331,7 +438,8 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     RigidTree& tree = rigid->trees[t];
     const Eigen::Index size = tree.velocity.size();
     v.segment(tree_offset[t], size) = tree.velocity;
-    b.segment(tree_offset[t], size) = tree.mass * tree.velocity + tree.impulse;
+    b.segment(tree_offset[t], size).noalias() = tree.mass * tree.velocity;
+    b.segment(tree_offset[t], size) += tree.impulse;
   }
   // The bodies that run their own loops on one thread (all but bodies of at
   // least 16384 tets: DeformableBody::RunsOnSeveralThreads) prepare their
@@ -340,7 +448,10 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   // thread. A body's part is the same whichever thread computes it, so
   // the result does not depend on how they are shared out.
   Eigen::setNbThreads(std::max(1, settings.num_threads));
-  std::vector<int> shared_bodies, threaded_bodies;
+  std::vector<int>& shared_bodies = arrays.shared_bodies;
+  std::vector<int>& threaded_bodies = arrays.threaded_bodies;
+  shared_bodies.clear();
+  threaded_bodies.clear();
   long shared_tets = 0;
   for (int k = 0; k < num_bodies; ++k) {
     if (DeformableBody::RunsOnSeveralThreads(bodies[k]->model(), settings)) {
@@ -353,7 +464,8 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   const int num_runs = static_cast<int>(
       std::clamp<long>(std::min<long>(shared_tets / kMinSharedTetsPerThread, settings.num_threads),
                        1, std::max<long>(1, static_cast<long>(shared_bodies.size()))));
-  std::vector<int> run_begin(num_runs + 1, static_cast<int>(shared_bodies.size()));
+  std::vector<int>& run_begin = arrays.run_begin;
+  run_begin.assign(static_cast<size_t>(num_runs) + 1, static_cast<int>(shared_bodies.size()));
   run_begin[0] = 0;
   long tets_before = 0;
   int run = 1;
@@ -380,7 +492,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
       blocks[block] = body.system_diagonal_block(vertex);
     }
     const Eigen::VectorXd& last = body.last_velocity_change();
-    delta.segment(offset[k], size) = last.size() == size ? last : Eigen::VectorXd::Zero(size);
+    if (last.size() == size) delta.segment(offset[k], size) = last;  // (else zero)
     for (size_t i = 0; i < body.pinned_vertices().size(); ++i) {
       const int dof = offset[k] + 3 * body.pinned_vertices()[i];
       Eigen::Vector3d target = body.PinVelocity(i, dt);
@@ -393,7 +505,8 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
 
   // the pins that rigid trees carry (RigidPin): pinned as above, their
   // prescribed velocity now J q + constant
-  std::vector<Slave> slaves;
+  std::vector<Slave>& slaves = arrays.slaves;
+  slaves.clear();
   if (rigid) {
     for (const RigidPin& pin : rigid->pins) {
       const RigidPoint& point = rigid->points[static_cast<size_t>(pin.point)];
@@ -428,17 +541,23 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   };
 
   // contacts: their linearizations and couplings
-  std::vector<Coupling> couplings(contacts.size());
-  std::vector<ContactLinearization> linear(contacts.size());
-  std::vector<Eigen::Vector3d> contact_rhs(contacts.size());
+  std::vector<Coupling>& couplings = arrays.couplings;
+  AssignWithRoom(couplings, contacts.size(), Coupling{});
+  std::vector<ContactLinearization>& linear = arrays.linear;
+  ResizeWithRoom(linear, contacts.size());
+  std::vector<Eigen::Vector3d>& contact_rhs = arrays.contact_rhs;
+  ResizeWithRoom(contact_rhs, contacts.size());
   // each contact's friction law in this step (contact.h): with static
   // friction, sticking first, sliding along the sticking force it would
   // leave its cone with (slide[c]), sticking again if it then slid back,
   // sliding again if that leaves the cone (at most three switches a step,
   // the last to sliding, which stays in the cone)
-  std::vector<FrictionLaw> law(contacts.size(), FrictionLaw::kSmooth);
-  std::vector<Eigen::Vector3d> slide(contacts.size(), Eigen::Vector3d::Zero());
-  std::vector<char> switches(contacts.size(), 0);
+  std::vector<FrictionLaw>& law = arrays.law;
+  AssignWithRoom(law, contacts.size(), FrictionLaw::kSmooth);
+  std::vector<Eigen::Vector3d>& slide = arrays.slide;
+  AssignWithRoom(slide, contacts.size(), Eigen::Vector3d::Zero().eval());
+  std::vector<char>& switches = arrays.switches;
+  AssignWithRoom(switches, contacts.size(), char{0});
   auto linearize = [&](size_t c) {
     linear[c] = LinearizeContact(bodies, contacts[c], contact_settings, law[c], slide[c]);
     Coupling& coupling = couplings[c];
@@ -522,7 +641,8 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     }
   };
   // y = T^T A T x: the system the solve sees (A itself without carried pins)
-  Eigen::VectorXd carried(slaves.empty() ? 0 : n);
+  Eigen::VectorXd& carried = arrays.carried;
+  carried.resize(slaves.empty() ? 0 : n);
   auto multiply = [&](const Eigen::VectorXd& x, Eigen::VectorXd& y) {
     if (slaves.empty()) {
       multiply_full(x, y);
@@ -538,13 +658,15 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
       if (pinned[i]) x[i] = 0.0;
     }
   };
-  Eigen::VectorXd momentum(n);
+  Eigen::VectorXd& momentum = arrays.momentum;
+  momentum.resize(n);
   for (int k = 0; k < num_bodies; ++k) {
     bodies[k]->MultiplyMass(v.data() + offset[k], momentum.data() + offset[k]);
   }
   for (int t = 0; t < num_trees; ++t) {
     const Eigen::MatrixXd& mass = rigid->trees[t].mass;
-    momentum.segment(tree_offset[t], mass.rows()) = mass * v.segment(tree_offset[t], mass.rows());
+    momentum.segment(tree_offset[t], mass.rows()).noalias() =
+        mass * v.segment(tree_offset[t], mass.rows());
   }
   filter(momentum);
 
@@ -561,7 +683,8 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
 
   // Rounds of solves, each with the contacts that push (coupled_step.h);
   // the first guess: those that push at the warm start.
-  Eigen::VectorXd v_new = v + delta;
+  Eigen::VectorXd& v_new = arrays.v_new;
+  v_new = v + delta;
   carry(v_new, /*with_constant=*/true);  // (the same: J q + constant = the pin velocity)
   for (size_t c = 0; c < contacts.size(); ++c) {
     Eigen::Vector3d force = integrated_force(c, v_new);
@@ -577,14 +700,26 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   const int n_deformable = offset[num_bodies];
   const int n_rigid = n - n_deformable;
   const bool eliminate = n_rigid > 0 && n_rigid <= kMaxEliminatedRigidDofs;
-  std::vector<const Coupling*> rigid_couplings;
-  std::vector<int> touched;  // vertex blocks of the active rigid contacts
-  Eigen::VectorXd work = Eigen::VectorXd::Zero(n);
-  Eigen::LDLT<Eigen::MatrixXd> schur_factor;
-  const Eigen::VectorXd body_rhs = b;
-  const std::vector<Eigen::Matrix3d> body_blocks = blocks;
+  std::vector<const Coupling*>& rigid_couplings = arrays.rigid_couplings;
+  std::vector<int>& touched = arrays.touched;  // vertex blocks of the active rigid contacts
+  Eigen::VectorXd& work = arrays.work;
+  work.setZero(n);
+  Eigen::LDLT<Eigen::MatrixXd>& schur_factor = arrays.schur_factor;
+  Eigen::VectorXd& rigid_part = arrays.rigid_part;  // (the preconditioner's)
+  rigid_part.resize(n_rigid);
+  arrays.body_rhs = b;
+  const Eigen::VectorXd& body_rhs = arrays.body_rhs;
+  arrays.body_blocks = blocks;
+  const std::vector<Eigen::Matrix3d>& body_blocks = arrays.body_blocks;
+  // (room for J^T G, n_rigid x 3, of a rigid contact or a carried pin)
+  if (arrays.product.size() < 3 * static_cast<size_t>(n_rigid)) {
+    arrays.product.resize(3 * static_cast<size_t>(n_rigid));
+  }
   CoupledStepReport report;
-  Eigen::VectorXd Av_new(n), r(n);
+  Eigen::VectorXd& Av_new = arrays.Av_new;
+  Eigen::VectorXd& r = arrays.r;
+  Av_new.resize(n);
+  r.resize(n);
   // (until the contacts settle, rounds solve to kSettlingTolerance, then
   // once precisely from there: when the first guess holds, as many
   // iterations in all as one precise solve)
@@ -635,7 +770,8 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     blocks = body_blocks;
     // each tree's diagonal block of A, M + its active contacts' J^T G J
     // (inverted in place below unless the trees are eliminated)
-    std::vector<Eigen::MatrixXd> tree_diagonal(num_trees);
+    std::vector<Eigen::MatrixXd>& tree_diagonal = arrays.tree_diagonal;
+    if (tree_diagonal.size() < static_cast<size_t>(num_trees)) tree_diagonal.resize(num_trees);
     for (int t = 0; t < num_trees; ++t) tree_diagonal[t] = rigid->trees[t].mass;
     // the held constraints: J^T H J (its blocks on each tree's diagonal),
     // and J^T (g + H (J v + dt aref)) into b
@@ -643,7 +779,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     for (size_t k = 0; k < num_constraints; ++k) {
       const RigidConstraint& constraint = rigid->constraints[k];
       if (constraint.released) continue;
-      const Eigen::MatrixXd& hessian = laws[k].hessian;
+      const ConstraintMatrix& hessian = laws[k].hessian;
       const Eigen::Index rows = constraint.jacobian.rows();
       std::array<double, kMaxConstraintRows> rate{};
       for (Eigen::Index i = 0; i < rows; ++i) {
@@ -675,9 +811,12 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
       coupling.AddJt(contact_rhs[c], b);
       if (coupling.rigid_jacobian) {
         const auto& J = *coupling.rigid_jacobian;
+        Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, 3>> JtG(arrays.product.data(), J.cols(),
+                                                                 3);
+        JtG.noalias() = J.transpose() * coupling.gain;
         tree_diagonal[static_cast<size_t>(
-            rigid->points[static_cast<size_t>(contacts[c].rigid_point)].tree)] +=
-            J.transpose() * coupling.gain * J;
+                          rigid->points[static_cast<size_t>(contacts[c].rigid_point)].tree)]
+            .noalias() += JtG * J;
         rigid_couplings.push_back(&coupling);
       }
       if (coupling.dof_a >= 0) blocks[static_cast<size_t>(coupling.dof_a / 3)] += coupling.gain;
@@ -694,8 +833,9 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     // vertex's coupling to the rest of its body)
     for (const Slave& slave : slaves) {
       const auto& J = *slave.jacobian;
-      tree_diagonal[static_cast<size_t>(slave.tree)] +=
-          J.transpose() * blocks[static_cast<size_t>(slave.dof / 3)] * J;
+      Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, 3>> JtB(arrays.product.data(), J.cols(), 3);
+      JtB.noalias() = J.transpose() * blocks[static_cast<size_t>(slave.dof / 3)];
+      tree_diagonal[static_cast<size_t>(slave.tree)].noalias() += JtB * J;
     }
     // preconditioned CG on A v+ = b, warm-started from v plus each body's
     // last change, then from the last round's solution
@@ -721,7 +861,8 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
       }
       std::sort(touched.begin(), touched.end());
       touched.erase(std::unique(touched.begin(), touched.end()), touched.end());
-      Eigen::MatrixXd schur = Eigen::MatrixXd::Zero(n_rigid, n_rigid);
+      Eigen::MatrixXd& schur = arrays.schur;
+      schur.setZero(n_rigid, n_rigid);
       for (int t = 0; t < num_trees; ++t) {
         const Eigen::Index first = tree_offset[t] - n_deformable;
         const Eigen::Index size = tree_offset[t + 1] - tree_offset[t];
@@ -741,14 +882,17 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
             if (h == 0.0) continue;
             const auto row0 = constraint.jacobian.row(i).head(size0);
             const auto row1 = constraint.jacobian.row(j).segment(size0, size1);
-            schur.block(tree_offset[t0] - n_deformable, tree_offset[t1] - n_deformable, size0,
-                        size1) += h * row0.transpose() * row1;
-            schur.block(tree_offset[t1] - n_deformable, tree_offset[t0] - n_deformable, size1,
-                        size0) += h * row1.transpose() * row0;
+            const Eigen::Index first0 = tree_offset[t0] - n_deformable;
+            const Eigen::Index first1 = tree_offset[t1] - n_deformable;
+            schur.block(first0, first1, size0, size1).noalias() += h * row0.transpose() * row1;
+            schur.block(first1, first0, size1, size0).noalias() += h * row1.transpose() * row0;
           }
         }
       }
-      Eigen::VectorXd unit = Eigen::VectorXd::Zero(n), column(n_rigid);
+      Eigen::VectorXd& unit = arrays.unit;
+      Eigen::VectorXd& column = arrays.column;
+      unit.setZero(n);
+      column.resize(n_rigid);
       for (int j = 0; j < n_rigid; ++j) {
         unit[n_deformable + j] = 1.0;
         MultiplyRigidToVertices(rigid_couplings, unit, touched, work);
@@ -762,8 +906,15 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
       }
       schur_factor.compute(schur);
     } else {
-      for (Eigen::MatrixXd& block : tree_diagonal) {
-        block = block.ldlt().solve(Eigen::MatrixXd::Identity(block.rows(), block.cols())).eval();
+      if (arrays.tree_factors.size() < static_cast<size_t>(num_trees)) {
+        arrays.tree_factors.resize(num_trees);
+      }
+      for (int t = 0; t < num_trees; ++t) {
+        Eigen::MatrixXd& block = tree_diagonal[static_cast<size_t>(t)];
+        Eigen::LDLT<Eigen::MatrixXd>& factor = arrays.tree_factors[static_cast<size_t>(t)];
+        factor.compute(block);
+        block.setIdentity();
+        block = factor.solve(block);
       }
     }
     auto precondition = [&](const Eigen::VectorXd& x, Eigen::VectorXd& y) {
@@ -773,10 +924,9 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
       }
       if (eliminate) {
         // y_r = S^-1 (x_r - C^T B^-1 x_v), y_v = B^-1 (x_v - C y_r)
-        Eigen::VectorXd rigid_part(n_rigid);
         MultiplyVerticesToRigid(rigid_couplings, y, n_deformable, rigid_part);
-        rigid_part = schur_factor.solve(x.tail(n_rigid) - rigid_part);
-        y.tail(n_rigid) = rigid_part;
+        rigid_part = x.tail(n_rigid) - rigid_part;
+        y.tail(n_rigid) = schur_factor.solve(rigid_part);
         MultiplyRigidToVertices(rigid_couplings, y, touched, work);
         for (int block : touched) {
           y.segment<3>(3 * block) -=
@@ -802,7 +952,8 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     // (E = 2e11 Pa, 2 cm elements, 2 ms) spinning at 12 rad/s errors of 1%
     // of its momentum a step, and it gained 13 times its kinetic energy in
     // a second
-    Eigen::VectorXd impulse = b - momentum;
+    Eigen::VectorXd& impulse = arrays.impulse;
+    impulse = b - momentum;
     filter(impulse);
     double outside = bodies_outside;  // (squared)
     for (size_t c = 0; c < contacts.size(); ++c) {
@@ -815,7 +966,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     // with carried pins: T^T b, and at the start T^T A (T x + c) (v_new: x
     // carried, with the constants c), so that the residual is
     // T^T (b - A c) - T^T A T x
-    Eigen::VectorXd reduced;
+    Eigen::VectorXd& reduced = arrays.reduced;
     if (!slaves.empty()) {
       reduced = b;
       gather(reduced);
@@ -824,7 +975,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     }
     report.iterations +=
         ConjugateGradients(multiply, precondition, filter, slaves.empty() ? b : reduced, threshold,
-                           settings.cg_max_iterations, v_new, Av_new, r,
+                           settings.cg_max_iterations, v_new, Av_new, r, arrays.cg,
                            /*Ax_given=*/!slaves.empty());
     carry(v_new, /*with_constant=*/true);  // (nothing without carried pins)
     report.residual = reference > 0.0 ? r.norm() / reference : 0.0;
@@ -893,7 +1044,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
       if (constraint.kind == RigidConstraint::Kind::kEquality) continue;
       // r = J a - aref
       const Eigen::Index rows = constraint.jacobian.rows();
-      Eigen::VectorXd residual(rows);
+      ConstraintVector residual(rows);
       for (Eigen::Index i = 0; i < rows; ++i) {
         residual[i] = -(constraint_rate(constraint, i, change) + dt * constraint.reference[i]) / dt;
       }
@@ -907,13 +1058,13 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
                  laws[k].linearizations < kMaxConeLinearizations) {
         // (Newton's method: again about this solution where its force is
         // off the line)
-        Eigen::VectorXd force;
-        Eigen::MatrixXd hessian;
+        ConstraintVector force;
+        ConstraintMatrix hessian;
         MiddleZoneForce(constraint, residual, force, hessian);
-        const Eigen::VectorXd on_line =
+        const ConstraintVector on_line =
             laws[k].force - laws[k].hessian * (residual - laws[k].about);
         if ((force - on_line).norm() > kConeForceTolerance * force.norm()) {
-          slide_about(k, residual, std::move(force), std::move(hessian));
+          slide_about(k, residual, force, hessian);
           ++laws[k].linearizations;
           changed = true;
         }
@@ -955,7 +1106,8 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
 
   // the pin residuals (with carried pins, of A itself: Av_new is the reduced system's)
   if (!slaves.empty()) multiply_full(v_new, Av_new);
-  const Eigen::VectorXd residual = Av_new - b;
+  Eigen::VectorXd& residual = arrays.residual;
+  residual = Av_new - b;
   for (int k = 0; k < num_bodies; ++k) {
     const int size = offset[k + 1] - offset[k];
     StepReport body_report =

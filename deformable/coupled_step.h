@@ -48,6 +48,7 @@
 // `stick` holds its friction spring for the next.
 
 #include <array>
+#include <memory>
 #include <span>
 #include <vector>
 
@@ -111,6 +112,13 @@ struct CoupledStepReport {
 // joint's or tendon's dry friction) pushes either way: D (aref - J a)
 // while |r| < friction_loss / D, else friction_loss against r (sliding, a
 // constant force), switched as a solution moves it between the three.
+// The most rows a RigidConstraint has (an elliptic cone contact's, condim 6)
+inline constexpr int kMaxConstraintRows = 6;
+// A value per row of a RigidConstraint, held inline (no heap storage); room
+// for 8 rather than kMaxConstraintRows, whole packets of four (with 6,
+// GCC's -Warray-bounds takes a norm over 5 rows for reads past the end)
+using ConstraintVector = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, 8, 1>;
+
 struct RigidConstraint {
   enum class Kind { kEquality, kUnilateral, kEllipticCone, kFrictionLoss };
   // the trees it acts on (RigidSystem::trees): trees[1] < 0 for one
@@ -119,27 +127,25 @@ struct RigidConstraint {
   // trees[0], then of trees[1] (one row, or an elliptic cone contact's
   // normal row then its 1 to 5 friction rows)
   Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> jacobian;
-  Eigen::VectorXd mass;       // per row: D (> 0)
-  Eigen::VectorXd reference;  // per row: aref
+  ConstraintVector mass;       // per row: D (> 0)
+  ConstraintVector reference;  // per row: aref
   Kind kind = Kind::kEquality;
   // kEllipticCone: per row, the scale into the cone's space: mu for the
   // normal row, then each friction row's coefficient
-  Eigen::VectorXd cone;
+  ConstraintVector cone;
   double friction_loss = 0.0;  // kFrictionLoss: the most force it exerts
   // A unilateral one's rows' J a - aref at the rigid solver's solution at
   // the step's start, which sets the state the step starts it in: a row
   // released where it is > 0; a cone contact in its zone, and linearized
   // about it in the middle zone; a friction loss row in its state. Empty:
   // held.
-  Eigen::VectorXd start_residual;
+  ConstraintVector start_residual;
   bool released = false;  // out: released by the step
   // out: kEllipticCone in the cone's middle zone, kFrictionLoss at its
   // constant force
   bool sliding = false;
   int switches = 0;  // out: how often the step released it or took it back
 };
-// The most rows a RigidConstraint has (an elliptic cone contact's, condim 6)
-inline constexpr int kMaxConstraintRows = 6;
 struct RigidTree {
   Eigen::MatrixXd mass;          // n x n (n: the tree's degrees of freedom), positive definite
   Eigen::VectorXd velocity;      // n, at the step's start
@@ -173,6 +179,21 @@ struct RigidSystem {
   std::vector<RigidPoint> points;  // ContactPoint::rigid_point and RigidPin::point index this
   std::vector<RigidPin> pins;
   std::vector<RigidConstraint> constraints;
+
+  // For a caller that builds the system anew every step without allocating
+  // once warm: Clear() empties it but keeps the arrays of its trees, points
+  // and constraints, and each Add* appends an element as default-constructed
+  // but for arrays taken from those kept (an array then reallocates only
+  // where its new size differs).
+  void Clear();
+  RigidTree& AddTree();
+  RigidPoint& AddPoint();
+  RigidConstraint& AddConstraint();
+
+ private:
+  std::vector<RigidTree> spare_trees_;
+  std::vector<RigidPoint> spare_points_;
+  std::vector<RigidConstraint> spare_constraints_;
 };
 
 // Solves per step in which contacts may change any way; from the last of
@@ -199,11 +220,34 @@ inline constexpr double kSlidingForceTolerance = 0.01;
 // blocks); beyond, each tree's block alone.
 inline constexpr int kMaxEliminatedRigidDofs = 120;
 
+// The arrays StepCoupled works in, kept from one step to the next by a
+// caller that passes the same workspace each step: a step then allocates
+// only where a size grows beyond what the workspace has held (more
+// contacts, constraints or trees than before) or an array's size changes
+// (the degrees of freedom in the system: trees joining or leaving it). Its
+// contents mean nothing between steps. Not to be shared by two steps at
+// once.
+class CoupledStepWorkspace {
+ public:
+  CoupledStepWorkspace();
+  ~CoupledStepWorkspace();
+  CoupledStepWorkspace(CoupledStepWorkspace&&) noexcept;
+  CoupledStepWorkspace& operator=(CoupledStepWorkspace&&) noexcept;
+
+  struct Arrays;  // (coupled_step.cc)
+  Arrays& arrays() { return *arrays_; }
+
+ private:
+  std::unique_ptr<Arrays> arrays_;
+};
+
 // `rigid` (may be null) holds the trees and points of contacts with
-// rigid_point >= 0, and the pins its trees carry.
+// rigid_point >= 0, and the pins its trees carry. `workspace` (may be
+// null: the step makes its own) is the caller's CoupledStepWorkspace.
 CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
                               std::span<ContactPoint> contacts,
                               const ContactSettings& contact_settings, const StepSettings& settings,
-                              RigidSystem* rigid = nullptr);
+                              RigidSystem* rigid = nullptr,
+                              CoupledStepWorkspace* workspace = nullptr);
 
 }  // namespace tetcosim

@@ -568,7 +568,8 @@ Eigen::Vector3d DeformableBody::PinVelocity(size_t i, double dt) const {
   return (PinTarget(i) - x_.row(pinned_[i]).transpose()) / dt;
 }
 
-StepReport DeformableBody::FinishStep(const Eigen::VectorXd& v_new, const Eigen::VectorXd& residual,
+StepReport DeformableBody::FinishStep(const Eigen::Ref<const Eigen::VectorXd>& v_new,
+                                      const Eigen::Ref<const Eigen::VectorXd>& residual,
                                       const StepSettings& settings, int iterations) {
   StepReport report;
   last_iterations_ = iterations;

@@ -171,7 +171,8 @@ class DeformableBody {
   // Velocity that takes pinned vertex pinned_vertices()[i] to its target.
   Eigen::Vector3d PinVelocity(size_t i, double dt) const;
   // `iterations`: of the solve that gave v_new (SystemProduct::kAuto).
-  StepReport FinishStep(const Eigen::VectorXd& v_new, const Eigen::VectorXd& residual,
+  StepReport FinishStep(const Eigen::Ref<const Eigen::VectorXd>& v_new,
+                        const Eigen::Ref<const Eigen::VectorXd>& residual,
                         const StepSettings& settings, int iterations);
   // The last step's velocity change (3V), a warm start for the next.
   const Eigen::VectorXd& last_velocity_change() const { return delta_v_; }

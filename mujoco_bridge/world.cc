@@ -23,6 +23,7 @@
 #include "mesh/generators.h"
 #include "mesh/mesh_io.h"
 #include "mesh/same_bits.h"
+#include "mesh/vector_room.h"
 #include "mujoco_bridge/geom_shape.h"
 #include "mujoco_bridge/model_names.h"
 #include "mujoco_bridge/rollout_metrics.h"
@@ -568,6 +569,7 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
     world->damping_.push_back(spec.contact.damping.value_or(scene_contact.damping.value_or(0.5)));
     world->attach_bodies_.emplace_back();
     skins += SkinXml(*body, spec.rgba, "tetcosim_" + spec.name);
+    world->body_pointers_.push_back(body.get());
     world->bodies_.push_back(std::move(body));
   }
   std::string mjcf = scene.mjcf;
@@ -1066,9 +1068,9 @@ void World::FindOtherForces() {
     // ours: their active set, and the forces of the rows not linearized
     mj_fwdAcceleration(m, d);
     mj_fwdConstraint(m, d);
-    row_trees_.assign(static_cast<size_t>(d->nefc), {-1, -1});
+    AssignWithRoom(row_trees_, static_cast<size_t>(d->nefc), std::array<int, 2>{-1, -1});
     // J qacc, each row's rate at MuJoCo's solution
-    constraint_rates_.resize(static_cast<size_t>(d->nefc));
+    ResizeWithRoom(constraint_rates_, static_cast<size_t>(d->nefc));
     mj_mulJacVec(m, d, constraint_rates_.data(), d->qacc);
     const bool sparse = mj_isSparse(m) != 0;
     for (int first = 0, rows = 1; first < d->nefc; first += rows) {
@@ -1137,7 +1139,9 @@ void World::LinearizeConstraints(double dt) {
   const mjData* d = data_;
   const MjJacobianRows constraint_jacobian = {d->efc_J, d->efc_J_rownnz, d->efc_J_rowadr,
                                               d->efc_J_colind};
-  std::vector<DampingFactors> factors(rigid_.trees.size());  // (ScaleForDamping)
+  // (ScaleForDamping's, kept from step to step)
+  if (damping_factors_.size() < rigid_.trees.size()) damping_factors_.resize(rigid_.trees.size());
+  for (DampingFactors& tree_factors : damping_factors_) tree_factors.factored = false;
   for (int first = 0, rows = 1; first < d->nefc; first += rows) {
     rows = ConstraintRows(first);
     const int type = d->efc_type[first];
@@ -1152,7 +1156,7 @@ void World::LinearizeConstraints(double dt) {
       num_columns += tree_num_dofs_[root];
     }
     if (num_solved == 0) continue;
-    RigidConstraint& constraint = rigid_.constraints.emplace_back();
+    RigidConstraint& constraint = rigid_.AddConstraint();
     constraint.trees = slots;
     constraint.jacobian.setZero(rows, num_columns);
     for (int r = 0; r < rows; ++r) {
@@ -1167,14 +1171,14 @@ void World::LinearizeConstraints(double dt) {
         column += size;
       }
     }
-    constraint.mass = Eigen::Map<const Eigen::VectorXd>(d->efc_D + first, rows);
-    constraint.reference = Eigen::Map<const Eigen::VectorXd>(d->efc_aref + first, rows);
+    constraint.mass = Eigen::Map<const ConstraintVector>(d->efc_D + first, rows);
+    constraint.reference = Eigen::Map<const ConstraintVector>(d->efc_aref + first, rows);
     if (type == mjCNSTR_EQUALITY) {
       constraint.kind = RigidConstraint::Kind::kEquality;
     } else if (type == mjCNSTR_CONTACT_ELLIPTIC) {
       constraint.kind = RigidConstraint::Kind::kEllipticCone;
       const mjContact& contact = d->contact[d->efc_id[first]];
-      constraint.cone = Eigen::VectorXd::NullaryExpr(
+      constraint.cone = ConstraintVector::NullaryExpr(
           rows, [&](Eigen::Index r) { return r == 0 ? contact.mu : contact.friction[r - 1]; });
     } else if (type == mjCNSTR_FRICTION_DOF || type == mjCNSTR_FRICTION_TENDON) {
       constraint.kind = RigidConstraint::Kind::kFrictionLoss;
@@ -1184,12 +1188,12 @@ void World::LinearizeConstraints(double dt) {
     }
     if (type != mjCNSTR_EQUALITY) {
       constraint.start_residual =
-          Eigen::Map<const Eigen::VectorXd>(constraint_rates_.data() + first, rows) -
+          Eigen::Map<const ConstraintVector>(constraint_rates_.data() + first, rows) -
           constraint.reference;
     }
     if (tree_damped_[rigid_roots_[static_cast<size_t>(slots[0])]] ||
         (num_solved == 2 && tree_damped_[rigid_roots_[static_cast<size_t>(slots[1])]])) {
-      ScaleForDamping(&constraint, &factors);
+      ScaleForDamping(&constraint);
     }
   }
 }
@@ -1206,18 +1210,19 @@ void World::LinearizeConstraints(double dt) {
 // friction loss, its start residual) divided by sqrt(tau), which is the same
 // law on the same J^T force (the laws' forces are of degree one in J a -
 // aref, the cone's zones of degree zero), and symmetric.
-void World::ScaleForDamping(RigidConstraint* constraint,
-                            std::vector<DampingFactors>* factors) const {
+void World::ScaleForDamping(RigidConstraint* constraint) {
   double undamped = 0.0, damped = 0.0;  // tr(J M^-1 J^T), tr(J (M + h B)^-1 J^T)
   int column = 0;
   for (const int slot : constraint->trees) {
     if (slot < 0) continue;
     const int root = rigid_roots_[static_cast<size_t>(slot)];
     const int size = tree_num_dofs_[root];
-    DampingFactors& tree_factors = (*factors)[static_cast<size_t>(slot)];
-    if (tree_factors.damped.rows() == 0) {  // (the tree's first constraint)
-      tree_factors.undamped.compute(MassBlock(root));
+    DampingFactors& tree_factors = damping_factors_[static_cast<size_t>(slot)];
+    if (!tree_factors.factored) {  // (the tree's first constraint)
+      MassBlock(root, &mass_block_);
+      tree_factors.undamped.compute(mass_block_);
       tree_factors.damped.compute(rigid_.trees[static_cast<size_t>(slot)].mass);
+      tree_factors.factored = true;
     }
     const Eigen::MatrixXd jacobian = constraint->jacobian.middleCols(column, size);
     column += size;
@@ -1235,18 +1240,17 @@ void World::ScaleForDamping(RigidConstraint* constraint,
 
 // The tree's block of MuJoCo's sparse qM, which holds, in row i, M(i, i),
 // then M(i, j) for j = i's parent DoF, its parent, ...
-Eigen::MatrixXd World::MassBlock(int root) const {
+void World::MassBlock(int root, Eigen::MatrixXd* mass) const {
   const mjModel* m = model_;
   const int first = tree_first_dof_[root];
   const int size = tree_num_dofs_[root];
-  Eigen::MatrixXd mass = Eigen::MatrixXd::Zero(size, size);
+  mass->setZero(size, size);
   for (int i = first; i < first + size; ++i) {
     int address = m->dof_Madr[i];
     for (int j = i; j >= 0; j = m->dof_parentid[j]) {
-      mass(i - first, j - first) = mass(j - first, i - first) = data_->qM[address++];
+      (*mass)(i - first, j - first) = (*mass)(j - first, i - first) = data_->qM[address++];
     }
   }
-  return mass;
 }
 
 // MuJoCo's Euler step (and its implicit one) integrates a tree's velocities
@@ -1258,13 +1262,14 @@ Eigen::MatrixXd World::MassBlock(int root) const {
 // damping); and the tendons' damping, h sum_t b_t J_t^T J_t. The substeps
 // take h, not their own, so that (their mean force being MuJoCo's) the
 // velocities they reach are the ones MuJoCo's step reaches.
-Eigen::MatrixXd World::TreeMass(int root) const {
+void World::TreeMass(int root, Eigen::MatrixXd* mass_out) {
   const mjModel* m = model_;
   const int first = tree_first_dof_[root];
   const int size = tree_num_dofs_[root];
-  Eigen::MatrixXd mass = MassBlock(root);
+  MassBlock(root, mass_out);
+  Eigen::MatrixXd& mass = *mass_out;
   for (int i = 0; i < size; ++i) mass(i, i) += m->opt.timestep * m->dof_damping[first + i];
-  if (!implicit_damps_) return mass;
+  if (!implicit_damps_) return;
   for (int a = 0; a < m->nu; ++a) {
     const double rate = ActuatorForceRate(a);
     if (!(rate < 0.0)) continue;
@@ -1273,13 +1278,13 @@ Eigen::MatrixXd World::TreeMass(int root) const {
   }
   const MjJacobianRows tendon_jacobian = {data_->ten_J, data_->ten_J_rownnz, data_->ten_J_rowadr,
                                           data_->ten_J_colind};
-  Eigen::RowVectorXd arms(size);
+  if (tendon_arms_.size() < static_cast<size_t>(size)) tendon_arms_.resize(size);
+  Eigen::Map<Eigen::RowVectorXd> arms(tendon_arms_.data(), size);
   for (int t = 0; t < m->ntendon; ++t) {
     if (!(m->tendon_damping[t] > 0.0)) continue;
     JacobianRowSegment(m, tendon_jacobian, t, first, arms);
     mass.noalias() += m->opt.timestep * m->tendon_damping[t] * arms.transpose() * arms;
   }
-  return mass;
 }
 
 // d force / d velocity of actuator a, as MuJoCo's implicit step takes it:
@@ -1315,8 +1320,9 @@ void World::AdvanceUnsolvedTrees(double dt) {
       if (!tree_damped_[root] || m->body_rootid[root] != root) continue;
       const int first = tree_first_dof_[root];
       const int size = tree_num_dofs_[root];
+      TreeMass(root, &mass_block_);
       Eigen::Map<Eigen::VectorXd>(free_acceleration_.data() + first, size) =
-          TreeMass(root).ldlt().solve(
+          mass_block_.ldlt().solve(
               Eigen::Map<const Eigen::VectorXd>(other_forces_.data() + first, size));
     }
     free_acceleration_ready_ = true;
@@ -1345,10 +1351,7 @@ void World::BuildRigidSystem(double dt) {
   mjData* d = data_;
   for (size_t t = 0; t < rigid_.trees.size(); ++t) tree_slot_[rigid_roots_[t]] = -1;
   rigid_roots_.clear();
-  rigid_.trees.clear();
-  rigid_.points.clear();
-  rigid_.pins.clear();
-  rigid_.constraints.clear();
+  rigid_.Clear();
   if (!scene_.solver.implicit_rigid) return;
   // the point p_W of `body` (whose tree has degrees of freedom) in the
   // system, its tree added first if it is not yet
@@ -1360,14 +1363,14 @@ void World::BuildRigidSystem(double dt) {
     if (tree_slot_[root] < 0) {
       tree_slot_[root] = static_cast<int>(rigid_.trees.size());
       rigid_roots_.push_back(root);
-      RigidTree& tree = rigid_.trees.emplace_back();
-      tree.mass = TreeMass(root);
+      RigidTree& tree = rigid_.AddTree();
+      TreeMass(root, &tree.mass);
       tree.velocity = Eigen::Map<const Eigen::VectorXd>(substep_velocity_.data() + first, size);
       tree.impulse = dt * Eigen::Map<const Eigen::VectorXd>(other_forces_.data() + first, size);
     }
     jacobian_.resize(3 * static_cast<size_t>(m->nv));
     mj_jac(m, d, jacobian_.data(), nullptr, p_W.data(), body);
-    RigidPoint& rigid_point = rigid_.points.emplace_back();
+    RigidPoint& rigid_point = rigid_.AddPoint();
     rigid_point.tree = tree_slot_[root];
     rigid_point.jacobian =
         Eigen::Map<const MjJacobian>(jacobian_.data(), 3, m->nv).middleCols(first, size);
@@ -1650,28 +1653,28 @@ int World::ForEachGeomPenetration(
 void World::AddGeomContacts(double dt) {
   const mjModel* m = model_;
   const bool consistent = solver_.options().method == DepthMethod::kConsistent;
-  metrics_.fallback_points += ForEachGeomPenetration(
-      consistent, [&](int i, int v, int g, double depth, const Eigen::Vector3d& direction) {
-        const int body = m->geom_bodyid[g];
-        const DeformableBody& deformable = *bodies_[i];
-        Eigen::Vector3d p = deformable.positions().row(v).transpose();
-        ContactPoint contact;
-        contact.body_a = i;
-        contact.vertex_a = v;
-        const PointMotion motion = RigidPointMotion(body, p, dt);
-        contact.velocity_b = motion.velocity;
-        contact.arc = -motion.arc;
-        contact.mass_b = body > 0 ? m->body_mass[body] : 0.0;
-        contact.depth = depth;
-        contact.direction = direction;
-        contact.stiffness = kappa_[i] * deformable.model().contact_areas()[v];
-        contact.friction =
-            std::max(friction_[i], m->geom_friction[3 * g]);  // MuJoCo combines by max
-        contact.damping_ratio = damping_[i];
-        contacts_.push_back(contact);
-        contact_rigid_body_.push_back(body);
-        contact_key_.push_back({i, v, -1 - g});
-      });
+  auto add = [&](int i, int v, int g, double depth, const Eigen::Vector3d& direction) {
+    const int body = m->geom_bodyid[g];
+    const DeformableBody& deformable = *bodies_[i];
+    Eigen::Vector3d p = deformable.positions().row(v).transpose();
+    ContactPoint contact;
+    contact.body_a = i;
+    contact.vertex_a = v;
+    const PointMotion motion = RigidPointMotion(body, p, dt);
+    contact.velocity_b = motion.velocity;
+    contact.arc = -motion.arc;
+    contact.mass_b = body > 0 ? m->body_mass[body] : 0.0;
+    contact.depth = depth;
+    contact.direction = direction;
+    contact.stiffness = kappa_[i] * deformable.model().contact_areas()[v];
+    contact.friction = std::max(friction_[i], m->geom_friction[3 * g]);  // MuJoCo combines by max
+    contact.damping_ratio = damping_[i];
+    contacts_.push_back(contact);
+    contact_rigid_body_.push_back(body);
+    contact_key_.push_back({i, v, -1 - g});
+  };
+  // (by reference: a std::function holding the lambda itself would put it on the heap)
+  metrics_.fallback_points += ForEachGeomPenetration(consistent, std::ref(add));
 }
 
 // A friction spring is the displacement of A's point from where it stuck on
@@ -1690,7 +1693,7 @@ Eigen::Quaterniond World::PenetratedFrame(size_t c) const {
 }
 
 void World::RestoreFrictionSprings() {
-  contact_frame_.assign(contacts_.size(), Eigen::Quaterniond::Identity());
+  AssignWithRoom(contact_frame_, contacts_.size(), Eigen::Quaterniond::Identity());
   if (!contact_settings_.stick) return;
   for (size_t c = 0; c < contacts_.size(); ++c) {
     if (contacts_[c].friction > 0.0) contact_frame_[c] = PenetratedFrame(c);
@@ -1874,8 +1877,6 @@ void World::Step() {
   std::fill(tree_carried_.begin(), tree_carried_.end(), 0);
   std::fill(tree_solved_.begin(), tree_solved_.end(), 0);
   substep_path_.assign(m->nv, 0.0);
-  std::vector<DeformableBody*> bodies;
-  for (auto& body : bodies_) bodies.push_back(body.get());
   for (int substep = 0; substep < substeps; ++substep) {
     phase = Clock::now();
     UpdateProxies();
@@ -1898,7 +1899,8 @@ void World::Step() {
     phase = Clock::now();
     ContactSettings contact_settings = contact_settings_;
     RestoreFrictionSprings();
-    CoupledStepReport report = StepCoupled(bodies, contacts_, contact_settings, settings, &rigid_);
+    CoupledStepReport report = StepCoupled(body_pointers_, contacts_, contact_settings, settings,
+                                           &rigid_, &step_workspace_);
     KeepFrictionSprings();
     metrics_.solver_iterations += report.iterations;
     metrics_.contact_rounds += report.rounds;

@@ -257,18 +257,19 @@ class World {
   // TreeMass factorized once a substep, by its slot in rigid_
   struct DampingFactors {
     Eigen::LDLT<Eigen::MatrixXd> undamped, damped;
+    bool factored = false;  // in this substep
   };
-  void ScaleForDamping(RigidConstraint* constraint, std::vector<DampingFactors>* factors) const;
+  void ScaleForDamping(RigidConstraint* constraint);
   // the rows of the constraint whose first row is `row`: an elliptic cone
   // contact's dim, else 1
   int ConstraintRows(int row) const;
-  void AdvanceUnsolvedTrees(double dt);       // (substeps)
-  Eigen::MatrixXd MassBlock(int root) const;  // the tree's block of M
+  void AdvanceUnsolvedTrees(double dt);                   // (substeps)
+  void MassBlock(int root, Eigen::MatrixXd* mass) const;  // the tree's block of M
   // The tree's block of the matrix MuJoCo's step integrates its velocities
   // with: M plus the time step times the joints' damping, which its Euler
   // (and implicit) integrator takes implicitly, and (implicit) the
   // actuators' rates with their velocities and the tendons' damping
-  Eigen::MatrixXd TreeMass(int root) const;
+  void TreeMass(int root, Eigen::MatrixXd* mass);
   double ActuatorForceRate(int actuator) const;
   void AddRigidForce(int body, const Eigen::Vector3d& point, const Eigen::Vector3d& force);
   // The MuJoCo body that pin `pin` of deformable `deformable` follows, or
@@ -305,6 +306,7 @@ class World {
   mjModel_* model_ = nullptr;
   mjData_* data_ = nullptr;
   std::vector<std::unique_ptr<DeformableBody>> bodies_;
+  std::vector<DeformableBody*> body_pointers_;  // bodies_'s, for StepCoupled
   std::vector<std::string> load_warnings_;
   std::vector<double> kappa_;              // per deformable: contact stiffness per area and depth
   std::vector<double> mean_surface_area_;  // per deformable: MeanSurfaceVertexArea
@@ -350,6 +352,12 @@ class World {
   std::vector<int> tree_slot_;
   std::vector<int> rigid_roots_;
   RigidSystem rigid_;
+  CoupledStepWorkspace step_workspace_;
+  // kept from step to step: ScaleForDamping's factors (by slot in rigid_), a
+  // tree's block of M, TreeMass's tendon moment arms
+  std::vector<DampingFactors> damping_factors_;
+  Eigen::MatrixXd mass_block_;
+  std::vector<double> tendon_arms_;
   std::vector<double> jacobian_;      // 3 x nv, row-major
   std::vector<double> other_forces_;  // nv
   // each MuJoCo constraint's trees (their root bodies; -1: none, -2: three
