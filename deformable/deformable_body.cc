@@ -102,6 +102,8 @@ DeformableBody::DeformableBody(std::shared_ptr<const FemModel> model, std::strin
   solution_.setZero(3 * n);
 }
 
+DeformableBody::~DeformableBody() = default;
+
 void DeformableBody::Reset(const Eigen::Isometry3d& X_WB, const Eigen::Vector3d& v) {
   const Positions& rest = model_->mesh().positions();
   for (Eigen::Index i = 0; i < rest.rows(); ++i) {
@@ -500,8 +502,10 @@ StepReport DeformableBody::Step(const StepSettings& settings) {
     // the coupled step's solver with no contacts: block-Jacobi PCG on the
     // vertex-blocked product, pins as prescribed velocities
     DeformableBody* self = this;
+    if (!step_workspace_) step_workspace_ = std::make_unique<CoupledStepWorkspace>();
     const CoupledStepReport coupled =
-        StepCoupled(std::span<DeformableBody* const>(&self, 1), {}, ContactSettings{}, settings);
+        StepCoupled(std::span<DeformableBody* const>(&self, 1), {}, ContactSettings{}, settings,
+                    /*rigid=*/nullptr, step_workspace_.get());
     report.status = coupled.status;
     report.bad_vertex = coupled.bad_vertex;
     report.iterations = coupled.iterations;

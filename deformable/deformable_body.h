@@ -98,9 +98,12 @@ struct StepReport {
   double residual = 0.0;  // relative residual of the linear solve
 };
 
+class CoupledStepWorkspace;  // (coupled_step.h)
+
 class DeformableBody {
  public:
   DeformableBody(std::shared_ptr<const FemModel> model, std::string name);
+  ~DeformableBody();
 
   const std::string& name() const { return name_; }
   const FemModel& model() const { return *model_; }
@@ -246,6 +249,8 @@ class DeformableBody {
   Eigen::VectorXd pinned_b_;
   Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> ldlt_;
   bool ldlt_analyzed_ = false;
+  // Step's, with the conjugate gradients (coupled_step.h), made on its first call
+  std::unique_ptr<CoupledStepWorkspace> step_workspace_;
 };
 
 }  // namespace tetcosim

@@ -129,5 +129,23 @@ TEST(CoupledStepAllocation, AWarmWorkspaceStepsTheSameSizesWithoutAllocating) {
   }
 }
 
+// DeformableBody::Step with the conjugate gradients (the coupled step alone)
+// keeps its workspace: a cube pinned by one face, swinging under gravity,
+// allocates nothing after its first step.
+TEST(CoupledStepAllocation, ABodySteppedOnItsOwnAllocatesNothingOnceWarm) {
+  auto model = FemModel::Build(
+      std::make_shared<TetMesh>(TetMesh::Build(MakeShape("box:size=0.05:res=3"))), Material{});
+  DeformableBody body(model, "cube");
+  for (int v = 0; v < body.num_vertices(); ++v) {
+    if (body.positions()(v, 0) > 0.02) body.Pin(v);
+  }
+  StepSettings settings;
+  ASSERT_EQ(body.Step(settings).status, StepStatus::kOk);
+  const long before = testing::HeapAllocations();
+  for (int step = 0; step < 5; ++step) ASSERT_EQ(body.Step(settings).status, StepStatus::kOk);
+  EXPECT_EQ(testing::HeapAllocations() - before, 0);
+  EXPECT_LT(body.positions().col(2).minCoeff(), -0.025);  // (it moved: sagging)
+}
+
 }  // namespace
 }  // namespace tetcosim
