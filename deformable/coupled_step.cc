@@ -641,8 +641,8 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     }
   };
   // y = T^T A T x: the system the solve sees (A itself without carried pins)
-  Eigen::VectorXd& carried = arrays.carried;
-  carried.resize(slaves.empty() ? 0 : n);
+  Eigen::VectorXd& carried = arrays.carried;  // (with carried pins only)
+  if (!slaves.empty()) carried.resize(n);
   auto multiply = [&](const Eigen::VectorXd& x, Eigen::VectorXd& y) {
     if (slaves.empty()) {
       multiply_full(x, y);

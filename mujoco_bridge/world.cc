@@ -1224,11 +1224,18 @@ void World::ScaleForDamping(RigidConstraint* constraint) {
       tree_factors.damped.compute(rigid_.trees[static_cast<size_t>(slot)].mass);
       tree_factors.factored = true;
     }
-    const Eigen::MatrixXd jacobian = constraint->jacobian.middleCols(column, size);
+    // (row by row, J_r M^-1 J_r^T, into a kept vector: whole products
+    // of the rows would go to temporaries on the heap)
+    if (damping_solution_.size() < static_cast<size_t>(size)) damping_solution_.resize(size);
+    Eigen::Map<Eigen::VectorXd> solution(damping_solution_.data(), size);
+    for (Eigen::Index r = 0; r < constraint->jacobian.rows(); ++r) {
+      const auto row = constraint->jacobian.row(r).segment(column, size);
+      solution = tree_factors.undamped.solve(row.transpose());
+      undamped += row.dot(solution);
+      solution = tree_factors.damped.solve(row.transpose());
+      damped += row.dot(solution);
+    }
     column += size;
-    const Eigen::MatrixXd transposed = jacobian.transpose();
-    undamped += (jacobian * tree_factors.undamped.solve(transposed)).trace();
-    damped += (jacobian * tree_factors.damped.solve(transposed)).trace();
   }
   if (!(damped > 0.0)) return;
   const double root_tau = std::sqrt(undamped / damped);
@@ -1321,9 +1328,9 @@ void World::AdvanceUnsolvedTrees(double dt) {
       const int first = tree_first_dof_[root];
       const int size = tree_num_dofs_[root];
       TreeMass(root, &mass_block_);
+      mass_factor_.compute(mass_block_);
       Eigen::Map<Eigen::VectorXd>(free_acceleration_.data() + first, size) =
-          mass_block_.ldlt().solve(
-              Eigen::Map<const Eigen::VectorXd>(other_forces_.data() + first, size));
+          mass_factor_.solve(Eigen::Map<const Eigen::VectorXd>(other_forces_.data() + first, size));
     }
     free_acceleration_ready_ = true;
   }

@@ -353,10 +353,13 @@ class World {
   std::vector<int> rigid_roots_;
   RigidSystem rigid_;
   CoupledStepWorkspace step_workspace_;
-  // kept from step to step: ScaleForDamping's factors (by slot in rigid_), a
-  // tree's block of M, TreeMass's tendon moment arms
+  // kept from step to step: ScaleForDamping's factors (by slot in rigid_)
+  // and solution, a tree's block of M and its factors, TreeMass's tendon
+  // moment arms
   std::vector<DampingFactors> damping_factors_;
+  std::vector<double> damping_solution_;
   Eigen::MatrixXd mass_block_;
+  Eigen::LDLT<Eigen::MatrixXd> mass_factor_;
   std::vector<double> tendon_arms_;
   std::vector<double> jacobian_;      // 3 x nv, row-major
   std::vector<double> other_forces_;  // nv

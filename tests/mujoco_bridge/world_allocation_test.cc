@@ -11,15 +11,35 @@
 
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "mujoco_bridge/world.h"
+#include "tests/mujoco_bridge/temp_dir.h"
 #include "tests/support/allocation_counter.h"
 
 namespace tetcosim {
 namespace {
 
+// A soft cube resting on a lid whose hinge is damped, the lid held on its
+// joint limit by gravity and the cube (as the lids of world_test.cc): a
+// constraint on a damped tree, scaled every step (World::ScaleForDamping)
+constexpr const char* kLidOnItsLimit = R"(<mujoco>
+  <option timestep="0.01"/>
+  <worldbody>
+    <body name="lid" pos="-0.15 0 0.2">
+      <joint name="hinge" type="hinge" axis="0 1 0" damping="0.5" range="-90 0" limited="true"/>
+      <geom name="lid" type="box" pos="0.15 0 0" size="0.15 0.1 0.01" mass="0.3"/>
+    </body>
+  </worldbody>
+  <deformable>
+    <rigidtet body="lid" geom="lid" resolution="4"/>
+    <tetbody name="cube" shape="box" size="0.03 0.03 0.03" resolution="3" pos="0.05 0 0.245"
+             density="1000" young="1e5"/>
+  </deformable>
+</mujoco>)";
+
 struct SteadyScene {
-  const char* name;
+  std::string path;
   int warm_steps;     // through the settling
   int counted_steps;  // then counted
   bool contacts;      // (the strap has none: its attachments)
@@ -29,21 +49,27 @@ struct SteadyScene {
 // contacts both ways), the gripper holding a soft block (a robot's trees
 // and MuJoCo's constraints solved with the step), a strap hung from a
 // swinging body (attachments carried by its tree) and a block on a height
-// field (geom contacts); on one and on two threads, with either method.
+// field (geom contacts); and the damped lid above. On one and on two
+// threads, with either method.
 TEST(WorldAllocation, WarmStepsOfSettledScenesAllocateNothing) {
-  for (const SteadyScene& scene :
-       {SteadyScene{"cube_on_box", 450, 150, true}, SteadyScene{"gripper", 300, 150, true},
-        SteadyScene{"strap", 60, 60, false}, SteadyScene{"terrain", 200, 100, true}}) {
+  TempDir dir;
+  const std::string bundled = std::string(TETCOSIM_SOURCE_DIR) + "/models/scenes/";
+  const std::vector<SteadyScene> scenes = {
+      {bundled + "cube_on_box.xml", 450, 150, true},
+      {bundled + "gripper.xml", 300, 150, true},
+      {bundled + "strap.xml", 60, 60, false},
+      {bundled + "terrain.xml", 200, 100, true},
+      {dir.Write("damped_lid.xml", kLidOnItsLimit), 300, 100, true},
+  };
+  for (const SteadyScene& scene : scenes) {
     for (const DepthMethod method : {DepthMethod::kConsistent, DepthMethod::kClosest}) {
       for (const int threads : {1, 2}) {
-        SCOPED_TRACE(std::string(scene.name) +
-                     (method == DepthMethod::kClosest ? ", closest" : "") + ", " +
+        SCOPED_TRACE(scene.path + (method == DepthMethod::kClosest ? ", closest" : "") + ", " +
                      std::to_string(threads) + " threads");
         WorldOptions options;
         options.threads = threads;
         options.method = method;
-        std::unique_ptr<World> world = World::Load(
-            std::string(TETCOSIM_SOURCE_DIR) + "/models/scenes/" + scene.name + ".xml", options);
+        std::unique_ptr<World> world = World::Load(scene.path, options);
         for (int k = 0; k < scene.warm_steps; ++k) world->Step();
         ASSERT_EQ(world->metrics().status, StepStatus::kOk);
         const long before = testing::HeapAllocations();
