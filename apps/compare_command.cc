@@ -124,7 +124,7 @@ RunRow RunOne(const CompareOptions& options, const std::string& method, double d
     world->Step();
     const StepMetrics& m = world->metrics();
     if (m.status != StepStatus::kOk) {
-      row.status = "diverged";
+      row.status = m.status == StepStatus::kFailed ? "failed" : "diverged";
       message = m.message;
       break;
     }

@@ -1,7 +1,8 @@
 // tetcosim run SCENE.xml: a headless rollout that writes summary.json,
 // steps.csv, bodies.csv and (with --vtk) vtk/*.vtu with a series.pvd. Ctrl-C
 // (or SIGTERM, SIGHUP) stops cleanly with everything written so far valid; a
-// non-finite state stops the run with status "diverged".
+// non-finite state stops the run with status "diverged", and a fatal error
+// MuJoCo raised in a step with status "failed".
 
 #include <unistd.h>
 
@@ -180,7 +181,7 @@ void RunRollout(const RunOptions& options) {
     world->Step();
     const StepMetrics& metrics = world->metrics();
     if (metrics.status != StepStatus::kOk) {
-      status = "diverged";
+      status = metrics.status == StepStatus::kFailed ? "failed" : "diverged";
       message = metrics.message;
       break;
     }
@@ -216,7 +217,8 @@ void RunRollout(const RunOptions& options) {
   }
   if (terminal) std::fprintf(stderr, "\n");
   // the final state, unless it is a frame already or not finite
-  if (status != "diverged" && framed != done) write_frame();
+  const bool stopped = status == "diverged" || status == "failed";
+  if (!stopped && framed != done) write_frame();
   steps_csv.close();
   bodies_csv.close();
   deformables_csv.close();
@@ -303,7 +305,7 @@ void RunRollout(const RunOptions& options) {
       }
     }
   }
-  if (status == "diverged") throw Error(message);
+  if (stopped) throw Error(message);
   if (status == "interrupted") throw Error("interrupted; the outputs written so far are complete");
 }
 

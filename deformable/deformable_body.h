@@ -89,7 +89,10 @@ struct StepSettings {
   void Validate() const;
 };
 
-enum class StepStatus { kOk, kDiverged };
+// kDiverged: a non-finite state (the step was undone); kFailed: the step
+// could not be completed (MuJoCo raised a fatal error in it: World::Step),
+// and the world steps no further.
+enum class StepStatus { kOk, kDiverged, kFailed };
 
 struct StepReport {
   StepStatus status = StepStatus::kOk;

@@ -9,6 +9,7 @@
 
 #include "mesh/error.h"
 #include "mujoco_bridge/model_names.h"
+#include "mujoco_bridge/mujoco_errors.h"
 
 namespace tetcosim {
 
@@ -56,15 +57,22 @@ Renderer::Renderer(World& world, int width, int height, const std::string& camer
     OSMesaDestroyContext(state_->context);
     throw Error("OSMesa could not make its context current");
   }
+  // (freed by ~State also when made only in part: MuJoCo frees what is there)
   mjv_defaultScene(&state_->scene);
-  mjv_makeScene(m, &state_->scene, 10000);
+  mjr_defaultContext(&state_->render);
   state_->scene_made = true;
+  state_->render_made = true;
   mjv_defaultOption(&state_->option);
   state_->option.flags[mjVIS_SKIN] = 1;
-  mjr_defaultContext(&state_->render);
-  mjr_makeContext(m, &state_->render, mjFONTSCALE_100);
-  state_->render_made = true;
-  mjr_setBuffer(mjFB_OFFSCREEN, &state_->render);
+  try {
+    CallMuJoCo([&] {
+      mjv_makeScene(m, &state_->scene, 10000);
+      mjr_makeContext(m, &state_->render, mjFONTSCALE_100);
+      mjr_setBuffer(mjFB_OFFSCREEN, &state_->render);
+    });
+  } catch (const MuJoCoError& e) {
+    throw Error(std::string("MuJoCo could not make its offscreen renderer: ") + e.what());
+  }
   mjv_defaultCamera(&state_->camera);
   if (camera.empty()) {
     mjv_defaultFreeCamera(m, &state_->camera);
@@ -81,7 +89,9 @@ const std::vector<unsigned char>& Renderer::Render() {
   mjModel* m = world_.mutable_mj_model();
   mjData* d = world_.mj_data();
   mjvScene& scene = state_->scene;
-  mjv_updateScene(m, d, &state_->option, nullptr, &state_->camera, mjCAT_ALL, &scene);
+  State& state = *state_;
+  CallMuJoCo(
+      [&] { mjv_updateScene(m, d, &state.option, nullptr, &state.camera, mjCAT_ALL, &scene); });
   // the deformables' current surfaces into their skins (skin i is tetbody i)
   for (int i = 0; i < world_.num_deformables() && i < scene.nskin; ++i) {
     const DeformableBody& body = world_.deformable(i);
@@ -100,9 +110,12 @@ const std::vector<unsigned char>& Renderer::Render() {
     }
   }
   mjrRect viewport = {0, 0, width_, height_};
-  mjr_render(viewport, &scene, &state_->render);
   std::vector<unsigned char> flipped(rgb_.size());
-  mjr_readPixels(flipped.data(), nullptr, viewport, &state_->render);
+  unsigned char* pixels = flipped.data();
+  CallMuJoCo([&] {
+    mjr_render(viewport, &scene, &state.render);
+    mjr_readPixels(pixels, nullptr, viewport, &state.render);
+  });
   // OpenGL's first row is the bottom one
   const size_t row = static_cast<size_t>(width_) * 3;
   for (int y = 0; y < height_; ++y) {

@@ -18,8 +18,8 @@ namespace tetcosim {
 class Renderer {
  public:
   // camera: a camera name of the model, or empty for a free camera that
-  // frames the whole scene. Throws Error if OSMesa cannot be set up or the
-  // camera does not exist.
+  // frames the whole scene. Throws Error if OSMesa or MuJoCo's renderer
+  // cannot be set up or the camera does not exist.
   Renderer(World& world, int width, int height, const std::string& camera = "");
   ~Renderer();
   Renderer(const Renderer&) = delete;
@@ -28,6 +28,7 @@ class Renderer {
   int width() const { return width_; }
   int height() const { return height_; }
   // Renders the world's current state: width x height RGB, top row first.
+  // Throws MuJoCoError (mujoco_errors.h) if MuJoCo raises a fatal error.
   const std::vector<unsigned char>& Render();
 
  private:

@@ -31,7 +31,10 @@ double MaxSpeed(const World& world) {
   }
   for (int b = 1; b < world.num_rigid_bodies(); ++b) {
     if (world.RigidBodyIsStatic(b)) continue;
-    speed = std::max(speed, world.RigidBodyPointVelocity(b, world.RigidBodyCenterOfMass(b)).norm());
+    // its fastest point: a body spinning in place is not at rest
+    const double centre = world.RigidBodyPointVelocity(b, world.RigidBodyCenterOfMass(b)).norm();
+    speed = std::max(speed,
+                     centre + world.RigidBodyAngularVelocity(b).norm() * world.RigidBodyRadius(b));
   }
   return speed;
 }

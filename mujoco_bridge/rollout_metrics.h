@@ -63,9 +63,11 @@ struct RolloutMetricsOptions {
   // infinitely thick).
   double pass_through_fraction = 0.3;
   double sticking_fraction = 0.05;
-  // The scene is at rest when no deformable vertex and no rigid body's centre
-  // of mass moves faster than this (m/s); a pair is at rest when its centres
-  // of mass move slower than this relative to each other.
+  // The scene is at rest when no deformable vertex and no point of a moving
+  // rigid body moves faster than this (m/s; a rigid body's fastest point taken
+  // as |v_com| + |omega| World::RigidBodyRadius, so that a wheel spinning in
+  // place is not at rest); a pair is at rest when its centres of mass move
+  // slower than this relative to each other.
   double rest_speed = 0.02;
 };
 
@@ -107,7 +109,7 @@ struct RolloutSummary {
   double max_depth_seen = 0.0;  // m: largest depth the method reported
   // state
   double final_kinetic_energy = 0.0;  // J, deformables + rigid bodies
-  double max_speed = 0.0;             // m/s: fastest vertex or rigid centre of mass
+  double max_speed = 0.0;  // m/s: fastest vertex, or rigid body point (World::RigidBodyRadius)
   bool at_rest = false;
   // cost
   double collision_ms = 0.0;  // total

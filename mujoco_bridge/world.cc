@@ -26,6 +26,7 @@
 #include "mesh/vector_room.h"
 #include "mujoco_bridge/geom_shape.h"
 #include "mujoco_bridge/model_names.h"
+#include "mujoco_bridge/mujoco_errors.h"
 #include "mujoco_bridge/rollout_metrics.h"
 
 namespace tetcosim {
@@ -388,6 +389,25 @@ std::string OneLine(const std::string& text) {
   return joined;
 }
 
+// What to do about MuJoCo's fatal error `what`, as "; ..." after it (empty
+// where there is nothing to suggest).
+std::string MuJoCoErrorAdvice(const mjModel* m, const std::string& what) {
+  if (what.find("tack overflow") != std::string::npos) {
+    char advice[256];
+    std::snprintf(advice, sizeof(advice),
+                  "; MuJoCo's stack holds %d numbers (<size nstack>), too few for the "
+                  "contacts and constraints here: give the scene a larger one, such as "
+                  "<size nstack=\"%d\"/>",
+                  m->nstack,
+                  m->nstack < 500'000'000 ? 4 * std::max(m->nstack, 1000) : 2'000'000'000);
+    return advice;
+  }
+  if (what.find("allocate") != std::string::npos) {
+    return "; the machine is out of memory for the scene";
+  }
+  return "";
+}
+
 // The object a row of mjModel array `field` belongs to, for an error
 // message: "geom 'rim'" for row 3 of geom_pos, "" where the rows are not
 // objects (mesh vertices, say).
@@ -594,7 +614,13 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
   std::memcpy(vfs->filedata[vfs->nfile - 1], mjcf.data(), mjcf.size());
   char error[1000] = "";
   const std::string load_name = (directory / vfs_name).string();
-  world->model_ = mj_loadXML(load_name.c_str(), vfs.get(), error, sizeof(error));
+  try {
+    CallMuJoCo(
+        [&] { world->model_ = mj_loadXML(load_name.c_str(), vfs.get(), error, sizeof(error)); });
+  } catch (const MuJoCoError& e) {
+    mj_deleteVFS(vfs.get());
+    ThrowAt(scene_path, 0, std::string("MuJoCo failed loading the scene: ") + e.what());
+  }
   mj_deleteVFS(vfs.get());
   if (!world->model_) {
     std::string message = error;
@@ -638,10 +664,19 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
         "(tetcosim steps MuJoCo in two parts to apply the deformables' forces, and MuJoCo 2.2.2 "
         "integrates such a step with Euler); set integrator=\"Euler\" or \"implicit\"");
   }
-  world->data_ = mj_makeData(m);
+  try {
+    CallMuJoCo([&] {
+      world->data_ = mj_makeData(m);
+      // the first keyframe is the initial state
+      if (m->nkey > 0) mj_resetDataKeyframe(m, world->data_, 0);
+      mj_forward(m, world->data_);
+    });
+  } catch (const MuJoCoError& e) {
+    ThrowAt(scene_path, 0,
+            std::string("MuJoCo failed computing the scene's initial state: ") + e.what() +
+                MuJoCoErrorAdvice(m, e.what()));
+  }
   mjData* d = world->data_;
-  if (m->nkey > 0) mj_resetDataKeyframe(m, d, 0);  // the first keyframe is the initial state
-  mj_forward(m, d);
 
   // rigid proxies
   world->geom_has_proxy_.assign(m->ngeom, 0);
@@ -989,6 +1024,22 @@ Eigen::Vector3d World::RigidBodyPointVelocity(int body, const Eigen::Vector3d& p
   return v + omega.cross(p - Eigen::Map<const Eigen::Vector3d>(data_->xpos + 3 * body));
 }
 
+double World::RigidBodyRadius(int body) const {
+  if (body <= 0) return 0.0;
+  const mjModel* m = model_;
+  const Eigen::Map<const Eigen::Vector3d> com(data_->xipos + 3 * body);
+  double radius = 0.0;
+  for (int g = m->body_geomadr[body]; g >= 0 && g < m->body_geomadr[body] + m->body_geomnum[body];
+       ++g) {
+    radius = std::max(radius,
+                      (Eigen::Map<const Eigen::Vector3d>(data_->geom_xpos + 3 * g) - com).norm() +
+                          m->geom_rbound[g]);
+  }
+  if (m->body_geomnum[body] > 0 || m->body_mass[body] <= 0.0) return radius;
+  const double* inertia = m->body_inertia + 3 * body;
+  return std::sqrt((inertia[0] + inertia[1] + inertia[2]) / (2.0 * m->body_mass[body]));
+}
+
 World::PointMotion World::RigidPointMotion(int body, const Eigen::Vector3d& p, double dt) const {
   PointMotion motion;
   if (body <= 0) return motion;
@@ -1062,12 +1113,14 @@ void World::FindOtherForces() {
   if (other_forces_ready_) return;
   const mjModel* m = model_;
   mjData* d = data_;
-  mj_fwdActuation(m, d);
+  CallMuJoCo([&] { mj_fwdActuation(m, d); });
   if (LinearizedConstraints()) {
     // this step's constraint rows solved with the last step's forces of
     // ours: their active set, and the forces of the rows not linearized
-    mj_fwdAcceleration(m, d);
-    mj_fwdConstraint(m, d);
+    CallMuJoCo([&] {
+      mj_fwdAcceleration(m, d);
+      mj_fwdConstraint(m, d);
+    });
     AssignWithRoom(row_trees_, static_cast<size_t>(d->nefc), std::array<int, 2>{-1, -1});
     // J qacc, each row's rate at MuJoCo's solution
     ResizeWithRoom(constraint_rates_, static_cast<size_t>(d->nefc));
@@ -1098,7 +1151,8 @@ void World::FindOtherForces() {
   for (int b = 1; b < m->nbody; ++b) {
     const double* user = user_.data() + 6 * b;
     if (std::all_of(user, user + 6, [](double x) { return x == 0.0; })) continue;
-    mj_applyFT(m, d, user, user + 3, d->xipos + 3 * b, b, other_forces_.data());
+    CallMuJoCo(
+        [&] { mj_applyFT(m, d, user, user + 3, d->xipos + 3 * b, b, other_forces_.data()); });
   }
   for (int i = 0; i < m->nv; ++i) {
     other_forces_[i] += d->qfrc_passive[i] - d->qfrc_bias[i] + d->qfrc_actuator[i] +
@@ -1852,6 +1906,26 @@ void World::CollectContacts(double dt) {
 }
 
 void World::Step() {
+  if (!failure_.empty()) {
+    metrics_ = {};
+    metrics_.status = StepStatus::kFailed;
+    metrics_.message = failure_;
+    return;
+  }
+  try {
+    StepOnce();
+  } catch (const MuJoCoError& e) {
+    // MuJoCo's state is mid-step, its stack marked in use (nothing of
+    // ours is on it between calls): the world stops here
+    data_->pstack = 0;
+    failure_ = "MuJoCo failed step " + std::to_string(steps_) + ": " + e.what() +
+               MuJoCoErrorAdvice(model_, e.what()) + "; the world steps no further";
+    metrics_.status = StepStatus::kFailed;
+    metrics_.message = failure_;
+  }
+}
+
+void World::StepOnce() {
   Clock::time_point start = Clock::now();
   metrics_ = {};
   if (controller_) controller_(*this);
@@ -1871,7 +1945,7 @@ void World::Step() {
   }
 
   Clock::time_point phase = Clock::now();
-  mj_step1(m, d);
+  CallMuJoCo([&] { mj_step1(m, d); });
   metrics_.mujoco_ms += MillisecondsSince(phase);
 
   const int substeps = std::max(1, scene_.solver.substeps);
@@ -1976,7 +2050,7 @@ void World::Step() {
     }
   }
   phase = Clock::now();
-  mj_step2(m, d);
+  CallMuJoCo([&] { mj_step2(m, d); });
   // the first of MuJoCo's bad-state warnings this step raised, or -1
   int bad_state = -1;
   for (int k = 0; k < 3 && bad_state < 0; ++k) {
@@ -1986,9 +2060,11 @@ void World::Step() {
   if (substeps > 1 && bad_state < 0) FollowSubstepPaths();
   // bring poses and velocities (xpos, xipos, cvel) up to the new state, so
   // that what the world reports between steps is current
-  mj_kinematics(m, d);
-  mj_comPos(m, d);
-  mj_comVel(m, d);
+  CallMuJoCo([&] {
+    mj_kinematics(m, d);
+    mj_comPos(m, d);
+    mj_comVel(m, d);
+  });
   metrics_.mujoco_ms += MillisecondsSince(phase);
   if (bad_state >= 0) {
     constexpr const char* kWhat[3] = {"position", "velocity", "acceleration"};

@@ -88,7 +88,7 @@ struct StepMetrics {
   int released_contacts = 0;
   int stuck_contacts = 0;  // held by static friction (ContactPoint::stuck), over substeps
   StepStatus status = StepStatus::kOk;
-  std::string message;  // with kDiverged: body, vertex, step
+  std::string message;  // with kDiverged: body, vertex, step; with kFailed: MuJoCo's error
 };
 
 // The whole number of steps of dt (s, > 0) in `seconds`, rounded to the
@@ -110,7 +110,11 @@ class World {
   // Advances everything by one MuJoCo time step. A non-finite deformable
   // state is reported in metrics().status (kDiverged, with a message); the
   // deformables then stay as they were. A rigid-body state MuJoCo finds bad
-  // (it resets its bodies and warns) is reported the same way.
+  // (it resets its bodies and warns) is reported the same way. A fatal error
+  // MuJoCo raises in the step (its stack too small for the step's contacts,
+  // say: mujoco_errors.h) is reported as kFailed, with MuJoCo's message and
+  // what to do; MuJoCo's state is then left mid-step, and every later Step()
+  // does nothing but report the same.
   void Step();
   // Called at the start of every Step(), before mj_step1: set ctrl, apply
   // forces (xfrc_applied is kept as the user left it).
@@ -203,6 +207,11 @@ class World {
   // Velocity of the world point p_W moving with a MuJoCo body (zero for the
   // world body), world frame, m/s.
   Eigen::Vector3d RigidBodyPointVelocity(int body, const Eigen::Vector3d& p_W) const;
+  // Radius (m) about a MuJoCo body's centre of mass of a sphere that holds
+  // its geoms (their bounding spheres), or, for a body without geoms, its
+  // radius of gyration sqrt(trace(I) / 2m); 0 for the world body. A point of
+  // the body moves no faster than |v_com| + |omega| times it.
+  double RigidBodyRadius(int body) const;
 
   // Totals over deformables and MuJoCo bodies (world frame; angular momentum
   // about the world origin).
@@ -218,6 +227,8 @@ class World {
  private:
   World() = default;
   struct Proxy;
+  // Step() but for MuJoCo's fatal errors, which it throws (MuJoCoError)
+  void StepOnce();
   struct GeomContact;
 
   // a load warning for each pair of bodies that start deep inside each other
@@ -400,6 +411,7 @@ class World {
   ContactSettings contact_settings_;
   StepMetrics metrics_;
   long steps_ = 0;
+  std::string failure_;  // kFailed's message, once MuJoCo failed a step
 };
 
 }  // namespace tetcosim

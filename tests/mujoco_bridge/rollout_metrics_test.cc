@@ -285,6 +285,35 @@ TEST(RolloutMetrics, DeepInAGeomOrAMeshAtRestIsSticking) {
 
 // spatial and temporal figures of every step against a brute-force count over
 // all pairs of results
+// Two 5 cm balls 20 cm either side of a vertical hinge through their centre
+// of mass, turning at `omega` (rad/s): their outermost points, 25 cm out,
+// move at 0.25 omega while the centre of mass stands still.
+TEST(RolloutMetrics, ABodySpinningInPlaceIsNotAtRest) {
+  TempDir dir("tetcosim_metrics");
+  auto summary_at = [&](double omega) {
+    char scene[1024];
+    std::snprintf(scene, sizeof(scene), R"(<mujoco>
+  <option gravity="0 0 0"/>
+  <worldbody>
+    <body name="wheel" pos="0 0 1">
+      <joint type="hinge" axis="0 0 1"/>
+      <geom type="sphere" size="0.05" pos="0.2 0 0"/><geom type="sphere" size="0.05" pos="-0.2 0 0"/>
+    </body>
+  </worldbody>
+  <keyframe><key qvel="%g"/></keyframe>
+</mujoco>)",
+                  omega);
+    Scenario scenario(dir.Write("wheel.xml", scene));
+    return scenario.Summarize();
+  };
+  const RolloutSummary fast = summary_at(2.0);
+  EXPECT_NEAR(fast.max_speed, 0.5, 1e-12);
+  EXPECT_FALSE(fast.at_rest);
+  const RolloutSummary slow = summary_at(0.04);  // 1 cm/s: below rest_speed
+  EXPECT_NEAR(slow.max_speed, 0.01, 1e-12);
+  EXPECT_TRUE(slow.at_rest);
+}
+
 TEST(RolloutMetrics, DirectionFiguresMatchBruteForce) {
   for (DepthMethod method : {DepthMethod::kConsistent, DepthMethod::kClosest}) {
     WorldOptions options;

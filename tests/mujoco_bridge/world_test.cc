@@ -1258,6 +1258,83 @@ TEST(WorldStep, UnstableRigidStateIsAStatus) {
       << world->metrics().message;
 }
 
+// A body of eight 5 cm balls falling onto a plane from `height`, or set on
+// it by the first keyframe, beside a soft cube, with MuJoCo's stack
+// `nstack` numbers: 300 hold the step before the balls land, not the one
+// with their eight contacts.
+std::string BallsOnAPlane(int nstack, const char* keyframe = "") {
+  char text[2048];
+  std::snprintf(text, sizeof(text), R"(<mujoco>
+  <size nstack="%d"/>
+  <worldbody>
+    <geom type="plane" size="1 1 0.1"/>
+    <body name="balls" pos="0 0 0.1"><freejoint/>
+      <geom type="sphere" size="0.05" pos="0 0 0"/><geom type="sphere" size="0.05" pos="0.1 0 0"/>
+      <geom type="sphere" size="0.05" pos="0.2 0 0"/><geom type="sphere" size="0.05" pos="0.3 0 0"/>
+      <geom type="sphere" size="0.05" pos="0 0.1 0"/><geom type="sphere" size="0.05" pos="0.1 0.1 0"/>
+      <geom type="sphere" size="0.05" pos="0.2 0.1 0"/><geom type="sphere" size="0.05" pos="0.3 0.1 0"/>
+    </body>
+  </worldbody>
+  %s
+  <deformable>
+    <tetbody name="cube" shape="box" size="0.03 0.03 0.03" resolution="2" pos="0.6 0 0.029"/>
+  </deformable>
+</mujoco>)",
+                nstack, keyframe);
+  return text;
+}
+
+// MuJoCo raises a fatal error when its stack cannot hold a step (it used to
+// wait for Enter and exit the process): the step reports it, and the world
+// steps no further.
+TEST(WorldStep, AStepBeyondMuJoCosStackIsAStatusAndTheWorldStopsThere) {
+  TempDir dir("tetcosim_world_stack");
+  std::unique_ptr<World> world = World::Load(dir.Write("small.xml", BallsOnAPlane(300)));
+  long failed_at = -1;
+  for (long step = 0; step < 200 && failed_at < 0; ++step) {
+    world->Step();
+    if (world->metrics().status != StepStatus::kOk) failed_at = step;
+  }
+  ASSERT_GT(failed_at, 0) << "the balls fall for some steps first";
+  EXPECT_EQ(world->metrics().status, StepStatus::kFailed) << world->metrics().message;
+  const std::string message = world->metrics().message;
+  EXPECT_NE(message.find("MuJoCo failed step " + std::to_string(failed_at) + ": Stack overflow"),
+            std::string::npos)
+      << message;
+  EXPECT_NE(message.find("<size nstack=\""), std::string::npos) << message;
+  EXPECT_EQ(world->steps(), failed_at);
+  const double time = world->time();
+  EXPECT_NEAR(time, static_cast<double>(failed_at) * world->timestep(), 1e-12);
+  // later steps only report it
+  world->Step();
+  EXPECT_EQ(world->metrics().status, StepStatus::kFailed);
+  EXPECT_EQ(world->metrics().message, message);
+  EXPECT_EQ(world->time(), time);
+  EXPECT_EQ(world->steps(), failed_at);
+  EXPECT_TRUE(world->deformable(0).positions().allFinite());
+  // with the stack of the failure's advice, the same steps go through
+  std::unique_ptr<World> large = World::Load(dir.Write("large.xml", BallsOnAPlane(4000)));
+  for (long step = 0; step <= failed_at + 20; ++step) {
+    large->Step();
+    ASSERT_EQ(large->metrics().status, StepStatus::kOk) << large->metrics().message;
+  }
+}
+
+TEST(WorldLoad, AnInitialStateBeyondMuJoCosStackIsAClearError) {
+  TempDir dir("tetcosim_world_stack");
+  // (MuJoCo's compiler steps nothing with the balls down: the keyframe sets
+  // them on the plane)
+  const char* keyframe = R"(<keyframe><key qpos="0 0 0.049 1 0 0 0"/></keyframe>)";
+  const std::string path = dir.Write("small.xml", BallsOnAPlane(300, keyframe));
+  const std::string error = ErrorOf(path);
+  EXPECT_NE(
+      error.find(path + ": MuJoCo failed computing the scene's initial state: Stack overflow"),
+      std::string::npos)
+      << error;
+  EXPECT_NE(error.find("<size nstack=\""), std::string::npos) << error;
+  EXPECT_EQ(ErrorOf(dir.Write("large.xml", BallsOnAPlane(4000, keyframe))), "");
+}
+
 // A reset inside mj_step2 (a huge force on the box while the cube lies on
 // it, so that its acceleration is beyond what MuJoCo accepts) puts the box
 // back at its initial pose, and MuJoCo steps it once from rest: with
@@ -1822,6 +1899,41 @@ TEST(RunCommand, TerminatedRunKeepsValidOutputs) {
   std::getline(row, frame, ',');
   std::getline(row, time, ',');
   EXPECT_NEAR(std::stod(time), summary["sim_time"].get<double>(), 1e-6) << last;
+}
+
+// A step MuJoCo fails ends the run at once, though standard input stays
+// open (a fifo opened for reading and writing never ends; MuJoCo's own
+// handler waited there for Enter), with status 1, the outputs valid and
+// nothing written outside --out (MuJoCo appended to MUJOCO_LOG.TXT in the
+// working directory).
+TEST(RunCommand, AFailedStepEndsTheRunAtOnceWithValidOutputs) {
+  TempDir dir("tetcosim_run_failed");
+  dir.Write("balls.xml", BallsOnAPlane(300));
+  const std::string command = "cd " + dir.path().string() + " && mkfifo input && timeout 60 " +
+                              TETCOSIM_BINARY +
+                              " run balls.xml --duration 1 --out out 0<>input 2>&1";
+  const auto [status, text] = RunShell(command);
+  ASSERT_TRUE(WIFEXITED(status));
+  EXPECT_EQ(WEXITSTATUS(status), 1) << text;  // (124: timed out)
+  EXPECT_NE(text.find("tetcosim: error: MuJoCo failed step"), std::string::npos) << text;
+  EXPECT_EQ(text.find("Press Enter"), std::string::npos) << text;
+  std::vector<std::string> written;
+  for (const auto& entry : std::filesystem::directory_iterator(dir.path())) {
+    written.push_back(entry.path().filename().string());
+  }
+  std::sort(written.begin(), written.end());
+  EXPECT_EQ(written, (std::vector<std::string>{"balls.xml", "input", "out"}));
+  std::ifstream summary_file(dir.path() / "out" / "summary.json");
+  const nlohmann::json summary = nlohmann::json::parse(summary_file);
+  EXPECT_EQ(summary["status"], "failed");
+  EXPECT_NE(summary["message"].get<std::string>().find("Stack overflow"), std::string::npos);
+  const long steps = summary["steps"].get<long>();
+  EXPECT_GT(steps, 0);
+  std::ifstream steps_csv(dir.path() / "out" / "steps.csv");
+  std::string line;
+  long rows = -1;  // (the header)
+  while (std::getline(steps_csv, line)) ++rows;
+  EXPECT_EQ(rows, steps);
 }
 
 // Under nohup (SIGHUP ignored from the start) a hangup does not stop the
