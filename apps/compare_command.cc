@@ -20,6 +20,7 @@
 #include "apps/cli_checks.h"
 #include "apps/commands.h"
 #include "apps/interrupt.h"
+#include "apps/json_text.h"
 #include "apps/metrics_json.h"
 #include "mesh/error.h"
 #include "mesh/mesh_io.h"
@@ -157,7 +158,7 @@ RunRow RunOne(const CompareOptions& options, const std::string& method, double d
   summary["steps_per_second"] = row.steps_per_second;
   summary["plausible"] = row.plausible;
   summary["metrics"] = MetricsJson(row.summary, metrics.options());
-  WriteFileAtomically((folder / "summary.json").string(), summary.dump(2) + "\n");
+  WriteFileAtomically((folder / "summary.json").string(), JsonText(summary) + "\n");
   if (options.render && row.status != "interrupted") {
     Renderer renderer(*world, options.width, options.height, options.camera);
     WritePng((folder / "frame.png").string(), renderer.Render(), options.width, options.height);

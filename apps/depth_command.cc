@@ -11,6 +11,7 @@
 
 #include "apps/cli_checks.h"
 #include "apps/commands.h"
+#include "apps/json_text.h"
 #include "collision/penetration.h"
 #include "mesh/error.h"
 #include "mesh/mesh_io.h"
@@ -105,7 +106,7 @@ void RunDepth(const DepthOptions& options) {
                         {"intersect", timings.intersect * 1e3},
                         {"propagate", timings.propagate * 1e3},
                         {"closest", timings.closest * 1e3}}}};
-    std::printf("%s\n", out.dump(2).c_str());
+    std::printf("%s\n", JsonText(out).c_str());
   } else {
     std::printf("method               %s\n", DepthMethodName(solver_options.method));
     std::printf(

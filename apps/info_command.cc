@@ -5,6 +5,7 @@
 
 #include "apps/cli_checks.h"
 #include "apps/commands.h"
+#include "apps/json_text.h"
 #include "mesh/mesh_io.h"
 #include "mesh/quality.h"
 #include "mujoco_bridge/world.h"
@@ -54,7 +55,7 @@ void RunSceneInfo(const InfoOptions& options) {
                                   {"pinned", body.pinned_vertices().size()}});
   }
   if (options.json) {
-    std::printf("%s\n", out.dump(2).c_str());
+    std::printf("%s\n", JsonText(out).c_str());
     return;
   }
   std::printf("scene        %s\n", options.file.c_str());
@@ -104,7 +105,7 @@ void RunInfo(const InfoOptions& options) {
                       {"min_radius_ratio", quality.min_radius_ratio},
                       {"mean_radius_ratio", quality.mean_radius_ratio}};
     out["warnings"] = mesh.warnings();
-    std::printf("%s\n", out.dump(2).c_str());
+    std::printf("%s\n", JsonText(out).c_str());
     return;
   }
   std::printf("file                 %s\n", mesh.source().c_str());

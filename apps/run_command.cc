@@ -16,10 +16,13 @@
 
 #include "apps/cli_checks.h"
 #include "apps/commands.h"
+#include "apps/csv.h"
 #include "apps/interrupt.h"
+#include "apps/json_text.h"
 #include "apps/metrics_json.h"
 #include "mesh/error.h"
 #include "mesh/mesh_io.h"
+#include "mesh/xml_text.h"
 #include "mujoco_bridge/renderer.h"
 #include "mujoco_bridge/rollout_metrics.h"
 #include "mujoco_bridge/world.h"
@@ -61,7 +64,7 @@ void WriteVtkFrame(const World& world, const std::filesystem::path& directory, i
   for (size_t k = 0; k < series.size(); ++k) {
     int part = static_cast<int>(k % static_cast<size_t>(std::max(1, world.num_deformables())));
     pvd += "<DataSet timestep=\"" + std::to_string(series[k].first) + "\" part=\"" +
-           std::to_string(part) + "\" file=\"" + series[k].second + "\"/>\n";
+           std::to_string(part) + "\" file=\"" + XmlEscaped(series[k].second) + "\"/>\n";
   }
   pvd += "</Collection>\n</VTKFile>\n";
   WriteFileAtomically((directory / "series.pvd").string(), pvd);
@@ -139,10 +142,13 @@ void RunRollout(const RunOptions& options) {
       Eigen::Quaterniond q = world->RigidBodyOrientation(b);
       Eigen::Vector3d v = world->RigidBodyLinearVelocity(b);
       Eigen::Vector3d w = world->RigidBodyAngularVelocity(b);
+      // (the name on its own: a long one would not fit the line)
+      std::snprintf(line, sizeof(line), "%d,%.9g,", frame, world->time());
+      bodies_csv << line << CsvField(world->RigidBodyName(b));
       std::snprintf(line, sizeof(line),
-                    "%d,%.9g,%s,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g\n",
-                    frame, world->time(), world->RigidBodyName(b).c_str(), x.x(), x.y(), x.z(),
-                    q.w(), q.x(), q.y(), q.z(), v.x(), v.y(), v.z(), w.x(), w.y(), w.z());
+                    ",%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g\n", x.x(),
+                    x.y(), x.z(), q.w(), q.x(), q.y(), q.z(), v.x(), v.y(), v.z(), w.x(), w.y(),
+                    w.z());
       bodies_csv << line;
     }
     for (int i = 0; i < world->num_deformables(); ++i) {
@@ -151,11 +157,12 @@ void RunRollout(const RunOptions& options) {
       const Eigen::Vector3d v = body.CenterOfMassVelocity();
       const Eigen::Vector3d low = body.positions().colwise().minCoeff().transpose();
       const Eigen::Vector3d high = body.positions().colwise().maxCoeff().transpose();
+      std::snprintf(line, sizeof(line), "%d,%.9g,", frame, world->time());
+      deformables_csv << line << CsvField(body.name());
       std::snprintf(line, sizeof(line),
-                    "%d,%.9g,%s,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g\n",
-                    frame, world->time(), body.name().c_str(), c.x(), c.y(), c.z(), v.x(), v.y(),
-                    v.z(), body.KineticEnergy(), low.x(), low.y(), low.z(), high.x(), high.y(),
-                    high.z());
+                    ",%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g\n", c.x(),
+                    c.y(), c.z(), v.x(), v.y(), v.z(), body.KineticEnergy(), low.x(), low.y(),
+                    low.z(), high.x(), high.y(), high.z());
       deformables_csv << line;
     }
     if (options.vtk) WriteVtkFrame(*world, out / "vtk", frame, series);
@@ -267,7 +274,7 @@ void RunRollout(const RunOptions& options) {
                                      {"rigid", world->RigidKineticEnergy()}};
   const RolloutSummary rollout = rollout_metrics.Summarize(*world);
   summary["metrics"] = MetricsJson(rollout, rollout_metrics.options());
-  WriteFileAtomically((out / "summary.json").string(), summary.dump(2) + "\n");
+  WriteFileAtomically((out / "summary.json").string(), JsonText(summary) + "\n");
   std::printf("%s: %ld steps, %.3f s simulated in %.2f s wall (%.0f steps/s): %s\n",
               options.scene.c_str(), done, world->time(), wall,
               static_cast<double>(done) / std::max(wall, 1e-9), status.c_str());

@@ -2,6 +2,7 @@
 
 #include <tinyxml2.h>
 
+#include <algorithm>
 #include <charconv>
 #include <cmath>
 #include <filesystem>
@@ -13,6 +14,7 @@
 #include <string_view>
 
 #include "mesh/error.h"
+#include "mesh/utf8.h"
 #include "mesh/xml_error.h"
 
 namespace tetcosim {
@@ -145,6 +147,9 @@ class SceneParser {
     params.friction = Number(element, "friction", 0.0, 100.0);
   }
 
+  // the longest tetbody name: with "_FRAME.vtu" within a file name's 255 bytes
+  static constexpr size_t kMaxNameBytes = 200;
+
   SceneSpec Parse() {
     SceneSpec scene;
     scene.path = path_;
@@ -159,6 +164,16 @@ class SceneParser {
                   (document.ErrorLineNum() > 0
                        ? "; mend the file at that line (or the line before)"
                        : "; give an MJCF file (a <mujoco> element holding the scene)"));
+    }
+    // (names go into summary.json, and JSON is UTF-8)
+    std::string text = ReadText();
+    if (const std::optional<size_t> bad = FirstNonUtf8Byte(text)) {
+      const long line = 1 + std::count(text.begin(), text.begin() + static_cast<long>(*bad), '\n');
+      char message[160];
+      std::snprintf(message, sizeof(message),
+                    "byte 0x%02X (column %zu) is not UTF-8 text; save the scene as UTF-8",
+                    static_cast<unsigned char>(text[*bad]), *bad - LineStart(text, line) + 1);
+      ThrowAt(path_, line, message);
     }
     XMLElement* root = document.RootElement();
     if (!root || std::string(root->Name()) != "mujoco") {
@@ -262,7 +277,6 @@ class SceneParser {
     }
     // the MJCF for MuJoCo: the file's own text with <deformable> blanked out
     // (newlines kept), so that MuJoCo's line numbers are the file's
-    std::string text = ReadText();
     if (deformable) {
       size_t begin = LineStart(text, deformable->GetLineNum());
       begin = text.find("<deformable", begin);
@@ -295,6 +309,22 @@ class SceneParser {
     const char* name = e->Attribute("name");
     if (!name || !*name) Fail(e, "name is required");
     spec.name = name;
+    // (--vtk writes NAME_FRAME.vtu, and a file name holds 255 bytes)
+    if (spec.name.size() > kMaxNameBytes) {
+      Fail(e, "name is " + std::to_string(spec.name.size()) + " bytes long, more than the " +
+                  std::to_string(kMaxNameBytes) +
+                  " a file name leaves room for (--vtk writes NAME_FRAME.vtu); shorten it");
+    }
+    for (const char c : spec.name) {
+      const auto byte = static_cast<unsigned char>(c);
+      if (c != '/' && c != '\\' && byte >= 0x20 && byte != 0x7F) continue;
+      char what[64];
+      std::snprintf(what, sizeof(what),
+                    c == '/' || c == '\\' ? "'%c'" : "a control character (0x%02X)",
+                    c == '/' || c == '\\' ? c : byte);
+      Fail(e, std::string("name has ") + what +
+                  ", which a file name cannot hold (--vtk writes NAME_FRAME.vtu); rename it");
+    }
     spec.file = File(e, "file");
     if (const char* shape = e->Attribute("shape")) spec.shape = shape;
     if (spec.file.empty() == spec.shape.empty()) {

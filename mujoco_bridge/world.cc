@@ -24,6 +24,7 @@
 #include "mesh/mesh_io.h"
 #include "mesh/same_bits.h"
 #include "mesh/vector_room.h"
+#include "mesh/xml_text.h"
 #include "mujoco_bridge/geom_shape.h"
 #include "mujoco_bridge/model_names.h"
 #include "mujoco_bridge/mujoco_errors.h"
@@ -359,7 +360,7 @@ std::string SkinXml(const DeformableBody& body, const Eigen::Vector4d& rgba,
   }
   std::ostringstream xml;
   xml.precision(9);
-  xml << "<skin name=\"" << name << "\" rgba=\"" << rgba.transpose() << "\" vertex=\"";
+  xml << "<skin name=\"" << XmlEscaped(name) << "\" rgba=\"" << rgba.transpose() << "\" vertex=\"";
   for (int v : surface_vertices) xml << body.positions().row(v) << " ";
   xml << "\" face=\"";
   for (Eigen::Index f = 0; f < mesh.surface().rows(); ++f) {

@@ -127,6 +127,14 @@ TEST(SceneLoading, BadScenesNameTheLine) {
        "poisson = 0.5 is outside"},
       {"<tetbody name=\"a\" file=\"missing.msh\"/>\n",
        "scene.xml:6: <tetbody>: file 'missing.msh' does not exist"},
+      {"<tetbody name=\"a/b\" shape=\"sphere\" size=\"0.1\"/>\n",
+       "scene.xml:6: <tetbody>: name has '/', which a file name cannot hold"},
+      {"<tetbody name=\"" + std::string(201, 'n') + "\" shape=\"sphere\" size=\"0.1\"/>\n",
+       "scene.xml:6: <tetbody>: name is 201 bytes long, more than the 200 a file name"},
+      {"<tetbody name=\"a&#10;b\" shape=\"sphere\" size=\"0.1\"/>\n",
+       "scene.xml:6: <tetbody>: name has a control character (0x0A)"},
+      {"<tetbody name=\"caf\xE9\" shape=\"sphere\" size=\"0.1\"/>\n",
+       "scene.xml:6: byte 0xE9 (column 19) is not UTF-8 text; save the scene as UTF-8"},
       {"<tetbody name=\"a\" shape=\"blob\" size=\"0.1\"/>\n",
        "scene.xml:6: <tetbody name=\"a\">: tetbody 'a': unknown shape 'blob'"},
       {"<tetbody name=\"a\" shape=\"sphere\" size=\"0.1\" pos=\"1 2\"/>\n",
@@ -1899,6 +1907,66 @@ TEST(RunCommand, TerminatedRunKeepsValidOutputs) {
   std::getline(row, frame, ',');
   std::getline(row, time, ',');
   EXPECT_NEAR(std::stod(time), summary["sim_time"].get<double>(), 1e-6) << last;
+}
+
+// Names with commas, quotes and markup, and long ones, come through every
+// output as they were given: the CSV files read back (by Python's csv
+// module, an independent reader) with the same columns in every row and the
+// names whole; series.pvd parses and its files exist; summary.json parses,
+// and a MuJoCo body's name that is not UTF-8 (from an included file, which
+// tetcosim does not read) is in it with U+FFFD for the byte. (A comma
+// shifted the CSV columns; a quote in a tetbody's name broke the skin
+// tetcosim adds to MuJoCo's MJCF; a name longer than the CSV line buffer cut
+// its row; a byte that is not UTF-8 failed summary.json.)
+TEST(RunCommand, NamesWithCommasQuotesAndMarkupComeThroughEveryOutput) {
+  TempDir dir("tetcosim_run_names");
+  const std::string long_name(200, 'n');  // (the longest a tetbody's may be)
+  const std::string longer_name(600, 'r');
+  dir.Write("box.xml",
+            "<mujoco><worldbody><body name=\"box, caf\xE9\" pos=\"0 0 0.05\">"
+            "<freejoint/><geom type=\"box\" size=\"0.1 0.1 0.05\"/></body>"
+            "</worldbody></mujoco>");
+  dir.Write("names.xml", R"(<mujoco>
+  <worldbody>
+    <geom name="floor" type="plane" size="1 1 0.1"/>
+    <body name="ball, &quot;big&quot;" pos="0.3 0 0.05"><freejoint/><geom size="0.05"/></body>
+    <body name=")" + longer_name +
+                             R"(" pos="0.5 0 0.5"><freejoint/><geom size="0.01"/></body>
+  </worldbody>
+  <include file="box.xml"/>
+  <deformable>
+    <tetbody name="a, &quot;b&quot; &lt;c&gt; &amp; &apos;d&apos;" shape="box" size="0.03 0.03 0.03"
+             resolution="2" pos="0 0 0.131"/>
+    <tetbody name=")" + long_name +
+                             R"(" shape="sphere" size="0.03" pos="0.5 0 0.1"/>
+  </deformable>
+</mujoco>)");
+  const auto [status, text] = RunShell("cd " + dir.path().string() + " && " + TETCOSIM_BINARY +
+                                       " run names.xml --steps 20 --fps 100 --vtk --out out 2>&1");
+  ASSERT_EQ(status, 0) << text;
+  const std::string check = R"(
+import csv, json, os, sys, xml.dom.minidom
+out = sys.argv[1]
+names = set()
+for file in ("bodies.csv", "deformables.csv"):
+    lines = open(os.path.join(out, file), newline="", errors="surrogateescape")
+    rows = list(csv.reader(lines))
+    assert all(len(row) == len(rows[0]) for row in rows), file + ": columns differ"
+    names |= {row[2] for row in rows[1:]}
+expected = ["box, caf\udce9", "ball, \x22big\x22", "a, \x22b\x22 <c> & 'd'", "n" * 200, "r" * 600]
+print(sorted(names) == sorted(expected), end=" ")
+pvd = xml.dom.minidom.parse(os.path.join(out, "vtk", "series.pvd"))
+files = [d.getAttribute("file") for d in pvd.getElementsByTagName("DataSet")]
+print(len(files) > 0 and all(os.path.exists(os.path.join(out, "vtk", f)) for f in files), end=" ")
+summary = json.load(open(os.path.join(out, "summary.json"), encoding="utf-8"))
+pairs = summary["metrics"]["deepest_pairs"]
+print(any(p["a"] == "box, caf\ufffd" or p["b"] == "box, caf\ufffd" for p in pairs))
+)";
+  const std::string script = dir.Write("check.py", check);
+  const auto [check_status, result] =
+      RunShell("/usr/bin/python3 " + script + " " + (dir.path() / "out").string() + " 2>&1");
+  EXPECT_EQ(check_status, 0) << result;
+  EXPECT_EQ(result, "True True True\n");
 }
 
 // A step MuJoCo fails ends the run at once, though standard input stays
