@@ -158,6 +158,10 @@ RunRow RunOne(const CompareOptions& options, const std::string& method, double d
   summary["steps_per_second"] = row.steps_per_second;
   summary["plausible"] = row.plausible;
   summary["metrics"] = MetricsJson(row.summary, metrics.options());
+  summary["mujoco_warnings"] = nlohmann::ordered_json::array();
+  for (const World::MuJoCoWarning& warning : world->MuJoCoWarnings()) {
+    summary["mujoco_warnings"].push_back({{"warning", warning.what}, {"count", warning.count}});
+  }
   WriteFileAtomically((folder / "summary.json").string(), JsonText(summary) + "\n");
   if (options.render && row.status != "interrupted") {
     Renderer renderer(*world, options.width, options.height, options.camera);

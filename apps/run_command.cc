@@ -274,6 +274,10 @@ void RunRollout(const RunOptions& options) {
                                      {"rigid", world->RigidKineticEnergy()}};
   const RolloutSummary rollout = rollout_metrics.Summarize(*world);
   summary["metrics"] = MetricsJson(rollout, rollout_metrics.options());
+  summary["mujoco_warnings"] = nlohmann::ordered_json::array();
+  for (const World::MuJoCoWarning& warning : world->MuJoCoWarnings()) {
+    summary["mujoco_warnings"].push_back({{"warning", warning.what}, {"count", warning.count}});
+  }
   WriteFileAtomically((out / "summary.json").string(), JsonText(summary) + "\n");
   std::printf("%s: %ld steps, %.3f s simulated in %.2f s wall (%.0f steps/s): %s\n",
               options.scene.c_str(), done, world->time(), wall,
@@ -288,6 +292,10 @@ void RunRollout(const RunOptions& options) {
       rollout.pass_through_pairs, rollout.sticking_pairs, rollout.residual_max_depth,
       rollout.residual_mean_depth, rollout.final_kinetic_energy,
       rollout.at_rest ? " (at rest)" : "");
+  for (const World::MuJoCoWarning& warning : world->MuJoCoWarnings()) {
+    std::printf("  MuJoCo warned %d time%s: %s\n", warning.count, warning.count == 1 ? "" : "s",
+                warning.what.c_str());
+  }
   std::printf("  wrote %s/summary.json, steps.csv, bodies.csv, deformables.csv%s\n",
               options.out.c_str(), options.vtk ? ", vtk/" : "");
   if (options.video && frame > 0) {

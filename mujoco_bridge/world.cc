@@ -1830,6 +1830,29 @@ Eigen::Vector3d World::RigidBodyCenterOfMass(int body) const {
   return Eigen::Map<const Eigen::Vector3d>(data_->xipos + 3 * body);
 }
 
+std::vector<World::MuJoCoWarning> World::MuJoCoWarnings() const {
+  const mjModel* m = model_;
+  std::vector<MuJoCoWarning> warnings;
+  auto add = [&](int kind, const std::string& what) {
+    const int count = data_->warning[kind].number;
+    if (count > 0) warnings.push_back({what, count});
+  };
+  add(mjWARN_INERTIA,
+      "a body's inertia matrix was (nearly) singular: give the bodies mass and inertia "
+      "(<inertial>, or geoms with density)");
+  add(mjWARN_CONTACTFULL,
+      "MuJoCo's contact buffer was full and contacts were dropped: raise "
+      "<size nconmax> (it is " +
+          std::to_string(m->nconmax) + ")");
+  add(mjWARN_CNSTRFULL,
+      "MuJoCo's constraint buffer was full and constraints were dropped: "
+      "raise <size njmax> (it is " +
+          std::to_string(m->njmax) + ")");
+  add(mjWARN_VGEOMFULL, "the renderer's buffer of geoms was full and some were not drawn");
+  add(mjWARN_BADCTRL, "a control (ctrl) was not finite, and MuJoCo set it to 0");
+  return warnings;
+}
+
 bool World::RigidBodyIsStatic(int body) const {
   const mjModel* m = model_;
   return m->body_weldid[body] == 0 && m->body_mocapid[m->body_rootid[body]] < 0;

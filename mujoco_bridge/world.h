@@ -132,6 +132,15 @@ class World {
   // vertices dropped, higher-order tetrahedra read as linear. The commands
   // print them; a test may assert there are none.
   const std::vector<std::string>& load_warnings() const { return load_warnings_; }
+  // MuJoCo's warnings since loading that do not stop a step (its contact or
+  // constraint buffer full, so that some were dropped, and the like): what
+  // each means and what to do, and how many times MuJoCo raised it. A bad
+  // qpos, qvel or qacc is a kDiverged step instead.
+  struct MuJoCoWarning {
+    std::string what;
+    int count = 0;
+  };
+  std::vector<MuJoCoWarning> MuJoCoWarnings() const;
 
   const mjModel_* mj_model() const { return model_; }
   mjModel_* mutable_mj_model() { return model_; }

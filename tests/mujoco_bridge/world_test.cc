@@ -1969,6 +1969,44 @@ print(any(p["a"] == "box, caf\ufffd" or p["b"] == "box, caf\ufffd" for p in pair
   EXPECT_EQ(result, "True True True\n");
 }
 
+// A box resting on a plane needs four contacts: with room for two, MuJoCo
+// drops the others (and the box sinks in, tilted) but goes on, warning
+// once on stderr. The summary says so, with what to do; with room for
+// eight, there is nothing to say.
+TEST(RunCommand, ContactsMuJoCoDroppedAreInTheSummary) {
+  TempDir dir("tetcosim_run_warnings");
+  auto run = [&](int nconmax) {
+    dir.Write("box.xml", R"(<mujoco>
+  <size nconmax=")" + std::to_string(nconmax) +
+                             R"("/>
+  <worldbody>
+    <geom type="plane" size="1 1 0.1"/>
+    <body pos="0 0 0.1"><freejoint/><geom type="box" size="0.1 0.1 0.1"/></body>
+  </worldbody>
+  <deformable>
+    <tetbody name="cube" shape="box" size="0.03 0.03 0.03" resolution="2" pos="0.5 0 0.03"/>
+  </deformable>
+</mujoco>)");
+    const auto [status, text] = RunShell("cd " + dir.path().string() + " && " + TETCOSIM_BINARY +
+                                         " run box.xml --steps 50 --out out 2>/dev/null");
+    EXPECT_EQ(status, 0) << text;
+    std::ifstream summary_file(dir.path() / "out" / "summary.json");
+    return std::make_pair(nlohmann::json::parse(summary_file)["mujoco_warnings"], text);
+  };
+  const auto [dropped, printed] = run(2);
+  ASSERT_EQ(dropped.size(), 1u) << dropped;
+  const std::string warning = dropped[0]["warning"].get<std::string>();
+  EXPECT_NE(warning.find("contacts were dropped: raise <size nconmax> (it is 2)"),
+            std::string::npos)
+      << warning;
+  EXPECT_GT(dropped[0]["count"].get<int>(), 0);
+  EXPECT_NE(printed.find("MuJoCo warned"), std::string::npos) << printed;
+  const auto [none, quiet] = run(8);
+  EXPECT_TRUE(none.is_array());
+  EXPECT_TRUE(none.empty()) << none;
+  EXPECT_EQ(quiet.find("MuJoCo warned"), std::string::npos) << quiet;
+}
+
 // A step MuJoCo fails ends the run at once, though standard input stays
 // open (a fifo opened for reading and writing never ends; MuJoCo's own
 // handler waited there for Enter), with status 1, the outputs valid and
