@@ -130,6 +130,8 @@ void RunRollout(const RunOptions& options) {
   long penetration_points = 0;
   long sum_iterations = 0;
   long sum_rounds = 0;
+  long unconverged = 0;  // steps whose linear solve stopped short of the tolerance
+  double max_residual = 0.0;
   int max_points = 0;
   double max_depth = 0.0;
   long done = 0;
@@ -204,6 +206,8 @@ void RunRollout(const RunOptions& options) {
     sum_iterations += metrics.solver_iterations;
     sum_rounds += metrics.contact_rounds;
     max_points = std::max(max_points, metrics.colliding_points);
+    if (!metrics.solver_converged) ++unconverged;
+    max_residual = std::max(max_residual, metrics.solver_residual);
     max_depth = std::max(max_depth, metrics.max_depth);
     Eigen::Vector3d p = world->LinearMomentum();
     std::snprintf(
@@ -258,6 +262,8 @@ void RunRollout(const RunOptions& options) {
                             {"total", sum_ms[3] / n}};
   summary["mean_solver_iterations"] = static_cast<double>(sum_iterations) / n;
   summary["mean_contact_rounds"] = static_cast<double>(sum_rounds) / n;
+  summary["unconverged_steps"] = unconverged;
+  summary["max_solver_residual"] = max_residual;
   summary["contacts"] = {
       {"max_colliding_points", max_points},
       {"mean_colliding_points", static_cast<double>(sum_points) / n},
@@ -292,6 +298,14 @@ void RunRollout(const RunOptions& options) {
       rollout.pass_through_pairs, rollout.sticking_pairs, rollout.residual_max_depth,
       rollout.residual_mean_depth, rollout.final_kinetic_energy,
       rollout.at_rest ? " (at rest)" : "");
+  if (unconverged > 0) {
+    std::printf(
+        "  the linear solve stopped short of its tolerance in %ld of %ld steps (largest "
+        "residual %.3g, tolerance %g): those steps are inexact; raise <solver maxiter> (%d), or "
+        "look for extreme materials\n",
+        unconverged, done, max_residual, world->scene().solver.tolerance,
+        world->scene().solver.max_iterations);
+  }
   for (const World::MuJoCoWarning& warning : world->MuJoCoWarnings()) {
     std::printf("  MuJoCo warned %d time%s: %s\n", warning.count, warning.count == 1 ? "" : "s",
                 warning.what.c_str());

@@ -2008,6 +2008,10 @@ void World::StepOnce() {
                                            &rigid_, &step_workspace_);
     KeepFrictionSprings();
     metrics_.solver_iterations += report.iterations;
+    metrics_.solver_residual = std::max(metrics_.solver_residual, report.residual);
+    // (CG stops at r <= tolerance * reference; the report's residual is r /
+    // reference, rounded)
+    if (report.residual > settings.cg_tolerance * (1.0 + 1e-9)) metrics_.solver_converged = false;
     metrics_.contact_rounds += report.rounds;
     metrics_.released_contacts += report.released_contacts;
     metrics_.stuck_contacts += report.stuck_contacts;

@@ -81,6 +81,12 @@ struct StepMetrics {
   double mujoco_ms = 0.0;
   double total_ms = 0.0;
   int solver_iterations = 0;  // conjugate-gradient iterations, over substeps and rounds
+  // the linear solve's final residual relative to the step's impulse (its
+  // last round, the largest over substeps), and whether it reached the
+  // solver's tolerance (<solver tolerance>) within <solver maxiter>: a step
+  // that did not is finite but inexact
+  double solver_residual = 0.0;
+  bool solver_converged = true;
   // the coupled step's solves (one without contacts, at least two with
   // them, more when contacts that would pull are released: coupled_step.h)
   // and the contacts released, over substeps

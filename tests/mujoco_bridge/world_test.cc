@@ -1292,6 +1292,37 @@ std::string BallsOnAPlane(int nstack, const char* keyframe = "") {
   return text;
 }
 
+// A linear solve held to 3 iterations stops short of its tolerance, and the
+// step says so (it was reported as any other); with the default limit, the
+// same steps converge, to the residual the tolerance asks for.
+TEST(WorldStep, ASolveStoppedShortOfItsToleranceIsReported) {
+  TempDir dir("tetcosim_world_solve");
+  auto scene = [&](const char* maxiter) {
+    return dir.Write("cube.xml", std::string(R"(<mujoco>
+  <worldbody><geom type="plane" size="1 1 0.1"/></worldbody>
+  <deformable>
+    <solver tolerance="1e-7" )") + maxiter +
+                                     R"(/>
+    <tetbody name="cube" shape="box" size="0.05 0.05 0.05" resolution="4" pos="0 0 0.0495"
+             young="1e5"/>
+  </deformable>
+</mujoco>)");
+  };
+  std::unique_ptr<World> held = World::Load(scene(R"(maxiter="3")"));
+  std::unique_ptr<World> free = World::Load(scene(""));
+  for (int step = 0; step < 10; ++step) {
+    held->Step();
+    free->Step();
+    ASSERT_EQ(held->metrics().status, StepStatus::kOk);
+    EXPECT_LE(held->metrics().solver_iterations, 3 * held->metrics().contact_rounds);
+    EXPECT_FALSE(held->metrics().solver_converged) << "step " << step;
+    EXPECT_GT(held->metrics().solver_residual, 1e-7);
+    EXPECT_TRUE(free->metrics().solver_converged) << "step " << step;
+    EXPECT_LE(free->metrics().solver_residual, 1e-7 * (1 + 1e-9));
+    EXPECT_GT(free->metrics().solver_iterations, 3 * free->metrics().contact_rounds);
+  }
+}
+
 // MuJoCo raises a fatal error when its stack cannot hold a step (it used to
 // wait for Enter and exit the process): the step reports it, and the world
 // steps no further.
@@ -1747,6 +1778,9 @@ TEST(RunCommand, OutputsParse) {
   nlohmann::json summary = nlohmann::json::parse(summary_file);
   EXPECT_EQ(summary["status"], "ok");
   EXPECT_EQ(summary["steps"], 100);
+  EXPECT_EQ(summary["unconverged_steps"], 0);
+  EXPECT_LE(summary["max_solver_residual"].get<double>(), 1e-6 * (1 + 1e-9));
+  EXPECT_GT(summary["max_solver_residual"].get<double>(), 0.0);
   EXPECT_NEAR(summary["sim_time"].get<double>(), 0.2, 1e-9);
   std::ifstream steps(dir.path() / "out" / "steps.csv");
   std::string header, line;
