@@ -225,7 +225,7 @@ class World {
   // Radius (m) about a MuJoCo body's centre of mass of a sphere that holds
   // its geoms (their bounding spheres), or, for a body without geoms, its
   // radius of gyration sqrt(trace(I) / 2m); 0 for the world body. A point of
-  // the body moves no faster than |v_com| + |omega| times it.
+  // its geoms moves no faster than |v_com| + |omega| times it.
   double RigidBodyRadius(int body) const;
 
   // Totals over deformables and MuJoCo bodies (world frame; angular momentum
