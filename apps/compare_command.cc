@@ -117,6 +117,7 @@ RunRow RunOne(const CompareOptions& options, const std::string& method, double d
   std::string message;
   auto start = std::chrono::steady_clock::now();
   long done = 0;
+  long unconverged = 0;  // steps whose linear solve stopped short of the tolerance
   for (long step = 0; step < steps; ++step) {
     if (interrupted) {
       row.status = "interrupted";
@@ -130,6 +131,7 @@ RunRow RunOne(const CompareOptions& options, const std::string& method, double d
       break;
     }
     ++done;
+    if (!m.solver_converged) ++unconverged;
     metrics.Observe(*world);
     char line[256];
     std::snprintf(line, sizeof(line), "%ld,%.9g,%d,%.9g,%.9g,%.9g,%.6g,%.6g\n", step + 1,
@@ -143,9 +145,12 @@ RunRow RunOne(const CompareOptions& options, const std::string& method, double d
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   row.steps_per_second = wall > 0.0 ? static_cast<double>(done) / wall : 0.0;
   row.summary = metrics.Summarize(*world);
+  const std::vector<World::MuJoCoWarning> warnings = world->MuJoCoWarnings();
+  const bool dropped = std::any_of(warnings.begin(), warnings.end(),
+                                   [](const World::MuJoCoWarning& w) { return w.dropped; });
   row.plausible = row.status == "ok" && row.summary.pass_through_pairs == 0 &&
                   row.summary.sticking_pairs == 0 &&
-                  std::isfinite(row.summary.final_kinetic_energy);
+                  std::isfinite(row.summary.final_kinetic_energy) && unconverged == 0 && !dropped;
 
   nlohmann::ordered_json summary;
   summary["scene"] = options.scene;
@@ -158,8 +163,9 @@ RunRow RunOne(const CompareOptions& options, const std::string& method, double d
   summary["steps_per_second"] = row.steps_per_second;
   summary["plausible"] = row.plausible;
   summary["metrics"] = MetricsJson(row.summary, metrics.options());
+  summary["unconverged_steps"] = unconverged;
   summary["mujoco_warnings"] = nlohmann::ordered_json::array();
-  for (const World::MuJoCoWarning& warning : world->MuJoCoWarnings()) {
+  for (const World::MuJoCoWarning& warning : warnings) {
     summary["mujoco_warnings"].push_back({{"warning", warning.what}, {"count", warning.count}});
   }
   WriteFileAtomically((folder / "summary.json").string(), JsonText(summary) + "\n");

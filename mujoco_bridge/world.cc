@@ -1835,7 +1835,8 @@ std::vector<World::MuJoCoWarning> World::MuJoCoWarnings() const {
   std::vector<MuJoCoWarning> warnings;
   auto add = [&](int kind, const std::string& what) {
     const int count = data_->warning[kind].number;
-    if (count > 0) warnings.push_back({what, count});
+    const bool dropped = kind == mjWARN_CONTACTFULL || kind == mjWARN_CNSTRFULL;
+    if (count > 0) warnings.push_back({what, count, dropped});
   };
   add(mjWARN_INERTIA,
       "a body's inertia matrix was (nearly) singular: give the bodies mass and inertia "

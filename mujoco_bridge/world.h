@@ -145,6 +145,7 @@ class World {
   struct MuJoCoWarning {
     std::string what;
     int count = 0;
+    bool dropped = false;  // contacts or constraints were left out: the run is wrong
   };
   std::vector<MuJoCoWarning> MuJoCoWarnings() const;
 

@@ -2090,6 +2090,45 @@ TEST(RunCommand, NohupRunIgnoresHangup) {
   EXPECT_EQ(nlohmann::json::parse(summary_file)["status"], "interrupted");
 }
 
+// A run is plausible only if every step's solve converged and MuJoCo
+// dropped no contact: a soft cube resting on a box on a plane, with the
+// solve held to 3 iterations, or MuJoCo's contact buffer at 2 (the box needs
+// 4), is not; the same scene with neither is.
+TEST(CompareCommand, AnInexactRunIsNotPlausible) {
+  TempDir dir("tetcosim_compare_inexact");
+  auto plausible = [&](const std::string& size, const std::string& solver) {
+    dir.Write("scene.xml", R"(<mujoco>
+  )" + size + R"(
+  <worldbody>
+    <geom type="plane" size="1 1 0.1"/>
+    <body pos="0 0 0.1"><freejoint/><geom type="box" size="0.1 0.1 0.1"/></body>
+  </worldbody>
+  <deformable>
+    )" + solver + R"(
+    <tetbody name="cube" shape="box" size="0.03 0.03 0.03" resolution="3" pos="0 0 0.2295"/>
+  </deformable>
+</mujoco>)");
+    const std::string out = (dir.path() / "compare").string();
+    std::filesystem::remove_all(out);
+    const auto [status, text] = RunShell(
+        std::string(TETCOSIM_BINARY) + " compare " + (dir.path() / "scene.xml").string() +
+        " --methods consistent --dt 2ms --duration 0.04 --no-render --out " + out + " 2>&1");
+    EXPECT_EQ(status, 0) << text;
+    std::ifstream file(out + "/runs/consistent-2ms/summary.json");
+    const nlohmann::json summary = nlohmann::json::parse(file);
+    return std::make_pair(summary["plausible"].get<bool>(), summary);
+  };
+  const auto [exact, exact_summary] = plausible("", "");
+  EXPECT_TRUE(exact) << exact_summary;
+  EXPECT_EQ(exact_summary["unconverged_steps"], 0);
+  const auto [held, held_summary] = plausible("", R"(<solver maxiter="3"/>)");
+  EXPECT_FALSE(held) << held_summary;
+  EXPECT_GT(held_summary["unconverged_steps"].get<long>(), 0);
+  const auto [dropped, dropped_summary] = plausible(R"(<size nconmax="2"/>)", "");
+  EXPECT_FALSE(dropped) << dropped_summary;
+  EXPECT_EQ(dropped_summary["mujoco_warnings"].size(), 1u) << dropped_summary;
+}
+
 TEST(CompareCommand, WritesOneRowPerMethodAndTimestep) {
   TempDir dir;
   const std::string out = (dir.path() / "compare").string();
