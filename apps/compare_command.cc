@@ -126,7 +126,7 @@ RunRow RunOne(const CompareOptions& options, const std::string& method, double d
     world->Step();
     const StepMetrics& m = world->metrics();
     if (m.status != StepStatus::kOk) {
-      row.status = m.status == StepStatus::kFailed ? "failed" : "diverged";
+      row.status = StoppedStatusName(m.status);
       message = m.message;
       break;
     }
@@ -164,10 +164,7 @@ RunRow RunOne(const CompareOptions& options, const std::string& method, double d
   summary["plausible"] = row.plausible;
   summary["metrics"] = MetricsJson(row.summary, metrics.options());
   summary["unconverged_steps"] = unconverged;
-  summary["mujoco_warnings"] = nlohmann::ordered_json::array();
-  for (const World::MuJoCoWarning& warning : warnings) {
-    summary["mujoco_warnings"].push_back({{"warning", warning.what}, {"count", warning.count}});
-  }
+  summary["mujoco_warnings"] = MuJoCoWarningsJson(warnings);
   WriteFileAtomically((folder / "summary.json").string(), JsonText(summary) + "\n");
   if (options.render && row.status != "interrupted") {
     Renderer renderer(*world, options.width, options.height, options.camera);

@@ -1,13 +1,28 @@
 #pragma once
 
-// RolloutSummary as JSON, shared by `tetcosim run` (summary.json) and
-// `tetcosim compare`.
+// RolloutSummary, MuJoCo's warnings and a step's status as summary.json
+// gives them, shared by `tetcosim run` and `tetcosim compare`.
 
 #include <nlohmann/json.hpp>
 
 #include "mujoco_bridge/rollout_metrics.h"
 
 namespace tetcosim::app {
+
+// A run's status for the step that stopped it (not kOk).
+inline const char* StoppedStatusName(StepStatus status) {
+  return status == StepStatus::kFailed ? "failed" : "diverged";
+}
+
+// World::MuJoCoWarnings() as summary.json's `mujoco_warnings`.
+inline nlohmann::ordered_json MuJoCoWarningsJson(
+    const std::vector<World::MuJoCoWarning>& warnings) {
+  nlohmann::ordered_json array = nlohmann::ordered_json::array();
+  for (const World::MuJoCoWarning& warning : warnings) {
+    array.push_back({{"warning", warning.what}, {"count", warning.count}});
+  }
+  return array;
+}
 
 inline nlohmann::ordered_json MetricsJson(const RolloutSummary& s,
                                           const RolloutMetricsOptions& options) {

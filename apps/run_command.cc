@@ -190,7 +190,7 @@ void RunRollout(const RunOptions& options) {
     world->Step();
     const StepMetrics& metrics = world->metrics();
     if (metrics.status != StepStatus::kOk) {
-      status = metrics.status == StepStatus::kFailed ? "failed" : "diverged";
+      status = StoppedStatusName(metrics.status);
       message = metrics.message;
       break;
     }
@@ -280,10 +280,8 @@ void RunRollout(const RunOptions& options) {
                                      {"rigid", world->RigidKineticEnergy()}};
   const RolloutSummary rollout = rollout_metrics.Summarize(*world);
   summary["metrics"] = MetricsJson(rollout, rollout_metrics.options());
-  summary["mujoco_warnings"] = nlohmann::ordered_json::array();
-  for (const World::MuJoCoWarning& warning : world->MuJoCoWarnings()) {
-    summary["mujoco_warnings"].push_back({{"warning", warning.what}, {"count", warning.count}});
-  }
+  const std::vector<World::MuJoCoWarning> warnings = world->MuJoCoWarnings();
+  summary["mujoco_warnings"] = MuJoCoWarningsJson(warnings);
   WriteFileAtomically((out / "summary.json").string(), JsonText(summary) + "\n");
   std::printf("%s: %ld steps, %.3f s simulated in %.2f s wall (%.0f steps/s): %s\n",
               options.scene.c_str(), done, world->time(), wall,
@@ -306,7 +304,7 @@ void RunRollout(const RunOptions& options) {
         unconverged, done, max_residual, world->scene().solver.tolerance,
         world->scene().solver.max_iterations);
   }
-  for (const World::MuJoCoWarning& warning : world->MuJoCoWarnings()) {
+  for (const World::MuJoCoWarning& warning : warnings) {
     std::printf("  MuJoCo warned %d time%s: %s\n", warning.count, warning.count == 1 ? "" : "s",
                 warning.what.c_str());
   }

@@ -615,14 +615,15 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
   std::memcpy(vfs->filedata[vfs->nfile - 1], mjcf.data(), mjcf.size());
   char error[1000] = "";
   const std::string load_name = (directory / vfs_name).string();
+  std::optional<std::string> fatal;  // a fatal error MuJoCo raised in loading
   try {
     CallMuJoCo(
         [&] { world->model_ = mj_loadXML(load_name.c_str(), vfs.get(), error, sizeof(error)); });
   } catch (const MuJoCoError& e) {
-    mj_deleteVFS(vfs.get());
-    ThrowAt(scene_path, 0, std::string("MuJoCo failed loading the scene: ") + e.what());
+    fatal = e.what();
   }
   mj_deleteVFS(vfs.get());
+  if (fatal) ThrowAt(scene_path, 0, "MuJoCo failed loading the scene: " + *fatal);
   if (!world->model_) {
     std::string message = error;
     // MuJoCo names our in-memory file; the user knows the scene's
@@ -1030,8 +1031,8 @@ double World::RigidBodyRadius(int body) const {
   const mjModel* m = model_;
   const Eigen::Map<const Eigen::Vector3d> com(data_->xipos + 3 * body);
   double radius = 0.0;
-  for (int g = m->body_geomadr[body]; g >= 0 && g < m->body_geomadr[body] + m->body_geomnum[body];
-       ++g) {
+  for (int k = 0; k < m->body_geomnum[body]; ++k) {
+    const int g = m->body_geomadr[body] + k;
     radius = std::max(radius,
                       (Eigen::Map<const Eigen::Vector3d>(data_->geom_xpos + 3 * g) - com).norm() +
                           m->geom_rbound[g]);

@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "mujoco_bridge/world.h"
+#include "tests/mujoco_bridge/lid_scene.h"
 #include "tests/mujoco_bridge/temp_dir.h"
 #include "tests/support/allocation_counter.h"
 
@@ -23,20 +24,9 @@ namespace {
 // A soft cube resting on a lid whose hinge is damped, the lid held on its
 // joint limit by gravity and the cube (as the lids of world_test.cc): a
 // constraint on a damped tree, scaled every step (World::ScaleForDamping)
-constexpr const char* kLidOnItsLimit = R"(<mujoco>
-  <option timestep="0.01"/>
-  <worldbody>
-    <body name="lid" pos="-0.15 0 0.2">
-      <joint name="hinge" type="hinge" axis="0 1 0" damping="0.5" range="-90 0" limited="true"/>
-      <geom name="lid" type="box" pos="0.15 0 0" size="0.15 0.1 0.01" mass="0.3"/>
-    </body>
-  </worldbody>
-  <deformable>
-    <rigidtet body="lid" geom="lid" resolution="4"/>
-    <tetbody name="cube" shape="box" size="0.03 0.03 0.03" resolution="3" pos="0.05 0 0.245"
-             density="1000" young="1e5"/>
-  </deformable>
-</mujoco>)";
+std::string LidOnItsLimit() {
+  return LidScene(R"(damping="0.5" range="-90 0" limited="true")", R"(pos="0.05 0 0.245")");
+}
 
 struct SteadyScene {
   std::string path;
@@ -59,7 +49,7 @@ TEST(WorldAllocation, WarmStepsOfSettledScenesAllocateNothing) {
       {bundled + "gripper.xml", 300, 150, true},
       {bundled + "strap.xml", 60, 60, false},
       {bundled + "terrain.xml", 200, 100, true},
-      {dir.Write("damped_lid.xml", kLidOnItsLimit), 300, 100, true},
+      {dir.Write("damped_lid.xml", LidOnItsLimit()), 300, 100, true},
   };
   for (const SteadyScene& scene : scenes) {
     for (const DepthMethod method : {DepthMethod::kConsistent, DepthMethod::kClosest}) {
