@@ -227,9 +227,10 @@ void RunRollout(const RunOptions& options) {
     }
   }
   if (terminal) std::fprintf(stderr, "\n");
-  // the final state, unless it is a frame already or not finite
+  // the final state, unless it is a frame already (World::Step undoes a
+  // step it cannot complete: the state is the last step done's)
+  if (framed != done) write_frame();
   const bool stopped = status == "diverged" || status == "failed";
-  if (!stopped && framed != done) write_frame();
   steps_csv.close();
   bodies_csv.close();
   deformables_csv.close();

@@ -518,8 +518,16 @@ StepReport DeformableBody::Step(const StepSettings& settings) {
   ApplyPins(settings);
   Solve(report);
 
-  // commit only a finite state
+  // commit only a finite state; a vertex with a non-finite momentum or
+  // force, whose b makes the whole solution non-finite, is the one reported
   const int n = num_vertices();
+  for (int v = 0; v < n; ++v) {
+    if (!b_.segment<3>(3 * v).allFinite()) {
+      report.status = StepStatus::kDiverged;
+      report.bad_vertex = v;
+      return report;
+    }
+  }
   Eigen::Map<const Positions> v_new(solution_.data(), n, 3);
   for (int v = 0; v < n; ++v) {
     if (!v_new.row(v).allFinite() || !(x_.row(v) + settings.dt * v_new.row(v)).allFinite()) {
@@ -548,6 +556,28 @@ StepReport DeformableBody::Step(const StepSettings& settings) {
     x_ += settings.dt * v_;
   }
   return report;
+}
+
+void DeformableBody::Save(Memory* memory) const {
+  memory->x = x_;
+  memory->v = v_;
+  memory->applied = applied_;
+  memory->frames = frames_;
+  memory->rotations = rotations_;
+  memory->velocity_change = delta_v_;
+  memory->last_iterations = last_iterations_;
+  memory->pin_forces = pin_forces_;
+}
+
+void DeformableBody::Restore(const Memory& memory) {
+  x_ = memory.x;
+  v_ = memory.v;
+  applied_ = memory.applied;
+  frames_ = memory.frames;
+  rotations_ = memory.rotations;
+  delta_v_ = memory.velocity_change;
+  last_iterations_ = memory.last_iterations;
+  pin_forces_ = memory.pin_forces;
 }
 
 bool DeformableBody::RunsOnSeveralThreads(const FemModel& model, const StepSettings& settings) {
@@ -580,8 +610,11 @@ StepReport DeformableBody::FinishStep(const Eigen::Ref<const Eigen::VectorXd>& v
   const int n = num_vertices();
   Eigen::Map<const Positions> velocities(v_new.data(), n, 3);
   for (int v = 0; v < n; ++v) {
+    // (a non-finite force leaves the solve's residual there non-finite, and
+    // may leave v_new finite: the solve stopped at once)
     if (!velocities.row(v).allFinite() ||
-        !(x_.row(v) + settings.dt * velocities.row(v)).allFinite()) {
+        !(x_.row(v) + settings.dt * velocities.row(v)).allFinite() ||
+        !residual.segment<3>(3 * v).allFinite()) {
       report.status = StepStatus::kDiverged;
       report.bad_vertex = v;
       break;

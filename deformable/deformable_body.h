@@ -121,6 +121,22 @@ class DeformableBody {
   // Places the rest shape by X_WB and sets every velocity to v.
   void Reset(const Eigen::Isometry3d& X_WB, const Eigen::Vector3d& v = Eigen::Vector3d::Zero());
 
+  // What a step changes of the body and carries to the next (its state,
+  // warm starts and pin forces), and what its caller sets for it (applied
+  // forces, pin frames), kept to undo a step: Restore(Save()) leaves the
+  // body as if the steps between had not been taken. Save into the same
+  // Memory each time allocates only where sizes grow.
+  struct Memory {
+    Positions x, v, applied;
+    std::vector<Eigen::Isometry3d> frames;
+    std::vector<Eigen::Quaterniond> rotations;
+    Eigen::VectorXd velocity_change;
+    int last_iterations = 0;
+    std::vector<Eigen::Vector3d> pin_forces;
+  };
+  void Save(Memory* memory) const;
+  void Restore(const Memory& memory);
+
   // Applied forces (#V x 3, newtons, world frame): kept until changed.
   Positions& applied_forces() { return applied_; }
 
@@ -146,8 +162,8 @@ class DeformableBody {
   // Pieces of a step, for stepping bodies coupled by contact
   // (coupled_step.h). PrepareStep assembles the system A v+ = b (without the
   // pins, which the caller prescribes); FinishStep commits v+ (#V x 3, flat)
-  // if finite, and takes the pin forces from residual = A_total v+ - b_total.
-  // (Eigen's own thread count is the caller's: StepCoupled sets it.)
+  // if it and the residual are finite, and takes the pin forces from residual = A_total v+ -
+  // b_total. (Eigen's own thread count is the caller's: StepCoupled sets it.)
   void PrepareStep(const StepSettings& settings);
   const Eigen::SparseMatrix<double, Eigen::RowMajor, int>& system_matrix() const { return A_; }
   const Eigen::VectorXd& system_rhs() const { return b_; }

@@ -165,6 +165,26 @@ double MillisecondsSince(Clock::time_point start) {
   return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
 }
 
+// The arrays of mjData that mj_resetData sets, besides its time and
+// warnings (MuJoCo 2.2.2), with their lengths: what a step undone
+// (World::RestoreStepStart) puts back.
+struct StateArray {
+  mjtNum* mjData::*array;
+  int length;
+};
+std::array<StateArray, 10> StateArrays(const mjModel* m) {
+  return {{{&mjData::qpos, m->nq},
+           {&mjData::qvel, m->nv},
+           {&mjData::act, m->na},
+           {&mjData::ctrl, m->nu},
+           {&mjData::qfrc_applied, m->nv},
+           {&mjData::xfrc_applied, 6 * m->nbody},
+           {&mjData::mocap_pos, 3 * m->nmocap},
+           {&mjData::mocap_quat, 4 * m->nmocap},
+           {&mjData::qacc_warmstart, m->nv},
+           {&mjData::userdata, m->nuserdata}}};
+}
+
 // A MuJoCo body's motion, world frame: the velocity of its centre of mass
 // xipos, its angular velocity, and its spin (angular momentum about xipos,
 // with the principal inertia in the inertial frame ximat).
@@ -679,6 +699,20 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
                 MuJoCoErrorAdvice(m, e.what()));
   }
   mjData* d = world->data_;
+  // a state MuJoCo would reset at the first step (mj_checkPos, mj_checkVel)
+  for (int k = 0; k < 2; ++k) {
+    const mjtNum* values = k == 0 ? d->qpos : d->qvel;
+    const int length = k == 0 ? m->nq : m->nv;
+    for (int i = 0; i < length; ++i) {
+      if (!mju_isBad(values[i])) continue;
+      std::ostringstream message;
+      message << "the initial state (" << (m->nkey > 0 ? "the first keyframe" : "the model's")
+              << ") has " << (k == 0 ? "qpos[" : "qvel[") << i << "] = " << values[i]
+              << ", which MuJoCo does not step (it takes values up to " << mjMAXVAL
+              << " in size); give the joint a smaller one";
+      ThrowAt(scene_path, 0, message.str());
+    }
+  }
 
   // rigid proxies
   world->geom_has_proxy_.assign(m->ngeom, 0);
@@ -1948,20 +1982,84 @@ void World::Step() {
                MuJoCoErrorAdvice(model_, e.what()) + "; the world steps no further";
     metrics_.status = StepStatus::kFailed;
     metrics_.message = failure_;
+    try {
+      RestoreStepStart();
+    } catch (const MuJoCoError&) {
+      // (MuJoCo failed again, finding the restored state's poses: they
+      // stay as its failure left them)
+    }
   }
+}
+
+void World::SaveStepStart() {
+  const mjModel* m = model_;
+  const mjData* d = data_;
+  step_start_.time = d->time;
+  step_start_.mujoco.clear();
+  for (const StateArray& state : StateArrays(m)) {
+    const mjtNum* values = d->*state.array;
+    step_start_.mujoco.insert(step_start_.mujoco.end(), values, values + state.length);
+  }
+  step_start_.warnings.clear();
+  for (const mjWarningStat& warning : d->warning) {
+    step_start_.warnings.push_back(warning.number);
+    step_start_.warnings.push_back(warning.lastinfo);
+  }
+  step_start_.deformables.resize(bodies_.size());
+  for (size_t i = 0; i < bodies_.size(); ++i) bodies_[i]->Save(&step_start_.deformables[i]);
+  step_start_.ours = ours_;
+  step_start_.user = user_;
+  step_start_.written = written_;
+  step_start_.springs = springs_;
+}
+
+void World::RestoreStepStart(int bad_warning, int info) {
+  const mjModel* m = model_;
+  mjData* d = data_;
+  d->time = step_start_.time;
+  const double* saved = step_start_.mujoco.data();
+  for (const StateArray& state : StateArrays(m)) {
+    std::copy(saved, saved + state.length, d->*state.array);
+    saved += state.length;
+  }
+  for (int k = 0; k < mjNWARNING; ++k) {
+    d->warning[k].number = step_start_.warnings[2 * static_cast<size_t>(k)];
+    d->warning[k].lastinfo = step_start_.warnings[2 * static_cast<size_t>(k) + 1];
+  }
+  if (bad_warning >= 0) {
+    ++d->warning[bad_warning].number;
+    d->warning[bad_warning].lastinfo = info;
+  }
+  for (size_t i = 0; i < bodies_.size(); ++i) bodies_[i]->Restore(step_start_.deformables[i]);
+  ours_ = step_start_.ours;
+  user_ = step_start_.user;
+  written_ = step_start_.written;
+  springs_ = step_start_.springs;
+  std::fill(substep_moved_.begin(), substep_moved_.end(), 0);  // (MuJoCo's poses again)
+  // the poses and velocities the world reports between steps (as a step
+  // ends)
+  CallMuJoCo([&] {
+    mj_kinematics(m, d);
+    mj_comPos(m, d);
+    mj_comVel(m, d);
+  });
 }
 
 void World::StepOnce() {
   Clock::time_point start = Clock::now();
   metrics_ = {};
+  SaveStepStart();
   if (controller_) controller_(*this);
   mjModel* m = model_;
   mjData* d = data_;
   // MuJoCo's own instability warnings: it resets its state and goes on, so
-  // count them to report a status instead of silently wrong rigid bodies
+  // count them to report a status instead of silently wrong rigid bodies.
+  // Counted from 0 in the step (step_start_ keeps the counts): MuJoCo's
+  // reset clears every warning before it counts the one that made it reset,
+  // so a count compared with the one before the step would miss a second
+  // reset.
   constexpr int kBadState[3] = {mjWARN_BADQPOS, mjWARN_BADQVEL, mjWARN_BADQACC};
-  int bad_before[3];
-  for (int k = 0; k < 3; ++k) bad_before[k] = d->warning[kBadState[k]].number;
+  for (int k : kBadState) d->warning[k].number = 0;
   // the user's part of xfrc_applied: unchanged since we wrote user + ours,
   // the user's value as kept (exactly: (user + ours) - ours may differ from
   // user in the last bit, which would drift over many steps); changed,
@@ -2022,10 +2120,12 @@ void World::StepOnce() {
       metrics_.status = report.status;
       std::ostringstream message;
       message << "tetbody '" << bodies_[report.bad_body]->name() << "' vertex " << report.bad_vertex
-              << " became non-finite at step " << steps_ << " (t = " << d->time
-              << " s); try a smaller timestep, more substeps or a softer contact stiffness";
+              << " became non-finite (its velocity, position or a force on it) at step " << steps_
+              << " (t = " << d->time
+              << " s); the step is undone; try a smaller timestep, more substeps or a softer "
+                 "contact stiffness";
       metrics_.message = message.str();
-      std::fill(substep_moved_.begin(), substep_moved_.end(), 0);  // (MuJoCo's poses again)
+      RestoreStepStart();
       return;
     }
     // the next substep's trees start where this one's ended (MuJoCo, stepped
@@ -2081,13 +2181,18 @@ void World::StepOnce() {
   }
   phase = Clock::now();
   CallMuJoCo([&] { mj_step2(m, d); });
-  // the first of MuJoCo's bad-state warnings this step raised, or -1
+  // the first of MuJoCo's bad-state warnings this step raised (its
+  // reset put the bodies back at their initial state: no path to follow),
+  // or -1
   int bad_state = -1;
   for (int k = 0; k < 3 && bad_state < 0; ++k) {
-    if (d->warning[kBadState[k]].number != bad_before[k]) bad_state = k;
+    if (d->warning[kBadState[k]].number > 0) bad_state = k;
   }
-  // (a reset put MuJoCo's bodies back at their initial state: no path to follow)
-  if (substeps > 1 && bad_state < 0) FollowSubstepPaths();
+  int bad_index = bad_state >= 0 ? d->warning[kBadState[bad_state]].lastinfo : 0;
+  if (bad_state < 0) {
+    for (int k : kBadState) d->warning[k].number = step_start_.warnings[2 * static_cast<size_t>(k)];
+    if (substeps > 1) FollowSubstepPaths();
+  }
   // bring poses and velocities (xpos, xipos, cvel) up to the new state, so
   // that what the world reports between steps is current
   CallMuJoCo([&] {
@@ -2096,14 +2201,32 @@ void World::StepOnce() {
     mj_comVel(m, d);
   });
   metrics_.mujoco_ms += MillisecondsSince(phase);
+  // MuJoCo checks the positions and velocities a step leaves at the start
+  // of the next: checked here as MuJoCo does, so that every step done
+  // leaves a state MuJoCo takes
+  bool left_bad = false;
+  for (int k = 0; k < 2 && bad_state < 0; ++k) {
+    const mjtNum* values = k == 0 ? d->qpos : d->qvel;
+    const int length = k == 0 ? m->nq : m->nv;
+    for (int i = 0; i < length && bad_state < 0; ++i) {
+      if (mju_isBad(values[i])) {
+        bad_state = k;
+        bad_index = i;
+        left_bad = true;
+      }
+    }
+  }
   if (bad_state >= 0) {
-    constexpr const char* kWhat[3] = {"position", "velocity", "acceleration"};
+    constexpr const char* kWhat[3] = {"position qpos", "velocity qvel", "acceleration qacc"};
     metrics_.status = StepStatus::kDiverged;
     std::ostringstream message;
-    message << "MuJoCo found a non-finite or huge " << kWhat[bad_state] << " at DOF "
-            << d->warning[kBadState[bad_state]].lastinfo << " at step " << steps_
-            << " and reset its bodies; try a smaller timestep or softer actuators and joints";
+    message << (left_bad ? "MuJoCo's step left" : "MuJoCo found") << " a non-finite or huge "
+            << kWhat[bad_state] << "[" << bad_index << "] at step " << steps_
+            << "; the step is undone; try a smaller timestep or softer actuators and joints";
     metrics_.message = message.str();
+    RestoreStepStart(kBadState[bad_state], bad_index);
+    metrics_.total_ms = MillisecondsSince(start);
+    return;
   }
   ++steps_;
   metrics_.total_ms = MillisecondsSince(start);

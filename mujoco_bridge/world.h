@@ -113,14 +113,18 @@ class World {
   World(const World&) = delete;
   World& operator=(const World&) = delete;
 
-  // Advances everything by one MuJoCo time step. A non-finite deformable
-  // state is reported in metrics().status (kDiverged, with a message); the
-  // deformables then stay as they were. A rigid-body state MuJoCo finds bad
-  // (it resets its bodies and warns) is reported the same way. A fatal error
-  // MuJoCo raises in the step (its stack too small for the step's contacts,
-  // say: mujoco_errors.h) is reported as kFailed, with MuJoCo's message and
-  // what to do; MuJoCo's state is then left mid-step, and every later Step()
-  // does nothing but report the same.
+  // Advances everything by one MuJoCo time step. A step that cannot be
+  // completed is undone and reported in metrics().status, with a message:
+  // kDiverged for a non-finite deformable state, or a rigid-body state
+  // MuJoCo finds bad (MuJoCo resets its bodies, and clears its warnings and
+  // the controls, and warns); kFailed for a fatal error MuJoCo raises in the
+  // step (its stack too small for the step's contacts, say: mujoco_errors.h),
+  // with MuJoCo's message and what to do, after which every later Step()
+  // does nothing but report the same. Undone: the world is as the step found
+  // it, before the controller ran (time, positions and velocities of
+  // everything, controls, applied forces, mocap poses, MuJoCo's warnings,
+  // the friction springs of its contacts and the solvers' warm starts), and
+  // goes on as if it had not been tried.
   void Step();
   // Called at the start of every Step(), before mj_step1: set ctrl, apply
   // forces (xfrc_applied is kept as the user left it).
@@ -327,6 +331,11 @@ class World {
   // After MuJoCo's step: moves the trees the substeps solved as far as the
   // substeps did (see the definition).
   void FollowSubstepPaths();
+  // Keeps the state a step starts from, and puts it back (Step()'s
+  // "undone"); for a step MuJoCo found a bad state in, its warning
+  // `bad_warning` (an mjtWarning) is then counted once more, with `info`.
+  void SaveStepStart();
+  void RestoreStepStart(int bad_warning = -1, int info = 0);
 
   SceneSpec scene_;
   WorldOptions options_;
@@ -419,6 +428,19 @@ class World {
   std::vector<double> user_;               // nbody x 6, the user's part of xfrc_applied
   std::vector<double> written_;            // nbody x 6, xfrc_applied as written last step
   std::vector<double> accumulated_;        // nbody x 6, this step
+  // the state the step started from (SaveStepStart): MuJoCo's time, its
+  // arrays mj_resetData sets (StateArrays) one after another, its warnings
+  // (number and lastinfo of each), and the deformables' memories; with
+  // ours_, user_, written_ and springs_
+  struct StepStart {
+    double time = 0.0;
+    std::vector<double> mujoco;
+    std::vector<int> warnings;
+    std::vector<DeformableBody::Memory> deformables;
+    std::vector<double> ours, user, written;
+    std::vector<std::pair<ContactKey, Eigen::Vector3d>> springs;
+  };
+  StepStart step_start_;
   // whether other_forces_ holds this step's (MuJoCo's state does not change
   // between substeps: found once a step)
   bool other_forces_ready_ = false;

@@ -126,6 +126,83 @@ TEST(DeformableBody, SystemProductsAgree) {
   }
 }
 
+// A non-finite force on a vertex is reported at that vertex and the step
+// is not committed, by both solvers and by the coupled step (a NaN force
+// made the conjugate gradients' tolerance NaN: the solve stopped at once,
+// at its warm start, and the step reported kOk).
+TEST(DeformableBody, ANonFiniteForceIsReportedAtItsVertexAndNotCommitted) {
+  auto model = Model("box:size=0.05:res=2");
+  for (LinearSolver solver : {LinearSolver::kConjugateGradient, LinearSolver::kCholesky}) {
+    for (bool coupled : {false, true}) {
+      for (double bad : {std::nan(""), std::numeric_limits<double>::infinity()}) {
+        SCOPED_TRACE(::testing::Message()
+                     << static_cast<int>(solver) << " " << coupled << " " << bad);
+        DeformableBody body(model, "box");
+        StepSettings settings;
+        settings.solver = solver;
+        ASSERT_EQ(body.Step(settings).status, StepStatus::kOk);
+        const Positions x = body.positions();
+        const Positions v = body.velocities();
+        body.applied_forces()(7, 1) = bad;
+        DeformableBody* bodies[] = {&body};
+        StepStatus status = StepStatus::kOk;
+        int bad_vertex = -1;
+        if (coupled) {
+          const CoupledStepReport report = StepCoupled(bodies, {}, ContactSettings{}, settings);
+          status = report.status;
+          bad_vertex = report.bad_vertex;
+        } else {
+          const StepReport report = body.Step(settings);
+          status = report.status;
+          bad_vertex = report.bad_vertex;
+        }
+        EXPECT_EQ(status, StepStatus::kDiverged);
+        EXPECT_EQ(bad_vertex, 7);
+        EXPECT_TRUE(body.positions() == x);
+        EXPECT_TRUE(body.velocities() == v);
+      }
+    }
+  }
+}
+
+// Restore(Save()) takes a body back, and it steps on from there as it did
+// from the state it saved, bit for bit: its warm starts (the velocity
+// change, the element rotations, the count of the last solve's iterations)
+// come back too, as do its applied forces and pin frames.
+TEST(DeformableBody, RestoringASavedMemoryStepsOnTheSame) {
+  auto model = Model("box:size=0.05,0.03,0.02:res=4,3,2", Material{1e6, 0.3, 1000, 1, 0.01});
+  DeformableBody body(model, "box");
+  const int frame = body.PinToFrame({0, 1}, At(Eigen::Vector3d::Zero()));
+  // loose solves (their warm start shows in their result) of few
+  // iterations, then tight ones of many: SystemProduct::kAuto takes the
+  // element-wise product after the first and the assembled one after the
+  // others
+  StepSettings loose, tight;
+  loose.cg_tolerance = 0.1;
+  tight.cg_tolerance = 1e-7;
+  std::srand(5);
+  body.mutable_velocities() = 0.01 * Positions::Random(body.num_vertices(), 3);
+  for (int s = 0; s < 8; ++s) ASSERT_EQ(body.Step(loose).status, StepStatus::kOk);
+  DeformableBody::Memory memory;
+  body.Save(&memory);
+  auto steps = [&] {
+    std::vector<Positions> states;
+    for (int s = 0; s < 4; ++s) {
+      body.applied_forces()(3, 0) += 0.1;
+      // (the first step with the frame as saved)
+      if (s > 0) body.SetPinFrame(frame, At(Eigen::Vector3d(0.0, 0.0, 0.001 * s)));
+      EXPECT_EQ(body.Step(s == 0 ? loose : tight).status, StepStatus::kOk);
+      EXPECT_EQ(body.system_assembled(), s > 0) << s;
+      states.push_back(body.positions());
+      states.push_back(body.velocities());
+    }
+    return states;
+  };
+  const std::vector<Positions> first = steps();
+  body.Restore(memory);
+  EXPECT_TRUE(steps() == first);
+}
+
 // Euler-Bernoulli: a cantilever of length L under its own weight q = rho g A
 // deflects q L^4 / (8 E I) at the tip.
 TEST(DeformableBody, CantileverApproachesEulerBernoulli) {

@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <nlohmann/json.hpp>
 #include <numbers>
 #include <set>
@@ -1224,20 +1225,101 @@ TEST(WorldStep, SameInputAndThreadCountGiveBitIdenticalStates) {
   }
 }
 
-// MuJoCo resets its state on a NaN and only warns: the world reports it
-TEST(WorldStep, UnstableRigidStateIsAStatus) {
-  std::unique_ptr<World> world =
-      World::Load(std::string(TETCOSIM_SOURCE_DIR) + "/models/scenes/cube_on_box.xml");
-  world->Step();
-  ASSERT_EQ(world->metrics().status, StepStatus::kOk);
-  world->SetController([](World& w) { w.mj_data()->qvel[0] = std::nan(""); });
-  world->Step();
-  EXPECT_EQ(world->metrics().status, StepStatus::kDiverged);
-  EXPECT_NE(world->metrics().message.find("MuJoCo found a non-finite or huge velocity"),
-            std::string::npos)
-      << world->metrics().message;
+// What a step undone must put back, bit for bit: the time, MuJoCo's state
+// and what the user sets in it, the last step's coupling forces, and the
+// deformables' state.
+struct WorldState {
+  double time = 0.0;
+  std::vector<double> qpos, qvel, ctrl, qfrc_applied, xfrc_applied, coupling;
+  std::vector<Positions> x, v;
+  bool operator==(const WorldState&) const = default;
+};
+
+WorldState StateOf(const World& world) {
+  const mjModel* m = world.mj_model();
+  const mjData* d = world.mj_data();
+  WorldState state;
+  state.time = d->time;
+  state.qpos.assign(d->qpos, d->qpos + m->nq);
+  state.qvel.assign(d->qvel, d->qvel + m->nv);
+  state.ctrl.assign(d->ctrl, d->ctrl + m->nu);
+  state.qfrc_applied.assign(d->qfrc_applied, d->qfrc_applied + m->nv);
+  state.xfrc_applied.assign(d->xfrc_applied, d->xfrc_applied + 6 * m->nbody);
+  state.coupling = world.coupling_forces();
+  for (int i = 0; i < world.num_deformables(); ++i) {
+    state.x.push_back(world.deformable(i).positions());
+    state.v.push_back(world.deformable(i).velocities());
+  }
+  return state;
 }
 
+// MuJoCo resets its state on a NaN (clearing the controls, the applied
+// forces and its warnings, the count of this one too before counting it)
+// and only warns: the world reports it and undoes the step, every time
+TEST(WorldStep, AStepMuJoCoFindsABadStateInIsUndoneEveryTime) {
+  std::unique_ptr<World> world =
+      World::Load(std::string(TETCOSIM_SOURCE_DIR) + "/models/scenes/cube_on_box.xml");
+  for (int s = 0; s < 20; ++s) world->Step();
+  ASSERT_EQ(world->metrics().status, StepStatus::kOk);
+  world->mj_data()->xfrc_applied[6 * 1 + 2] = 0.5;  // the user's own force, kept
+  world->Step();
+  const WorldState before = StateOf(*world);
+  ASSERT_NE(before.qvel[0], 0.0) << "the box moves (MuJoCo's reset would set it at rest)";
+  world->SetController([](World& w) {
+    w.mj_data()->xfrc_applied[6 * 1 + 0] = 3.0;
+    w.mj_data()->qvel[0] = std::nan("");
+  });
+  for (int attempt = 0; attempt < 3; ++attempt) {
+    world->Step();
+    EXPECT_EQ(world->metrics().status, StepStatus::kDiverged) << "attempt " << attempt;
+    EXPECT_NE(world->metrics().message.find(
+                  "MuJoCo found a non-finite or huge velocity qvel[0] at step 21; the step is "
+                  "undone"),
+              std::string::npos)
+        << world->metrics().message;
+    EXPECT_TRUE(StateOf(*world) == before) << "attempt " << attempt;
+  }
+  world->SetController(nullptr);
+  world->Step();
+  EXPECT_EQ(world->metrics().status, StepStatus::kOk) << world->metrics().message;
+  EXPECT_EQ(world->time(), before.time + world->timestep());
+  EXPECT_EQ(world->mj_data()->xfrc_applied[6 * 1 + 2] - world->coupling_forces()[6 * 1 + 2], 0.5);
+}
+
+// MuJoCo checks a step's positions and velocities at the next step's
+// start: the world checks them as the step ends, so that a step done leaves
+// a state MuJoCo takes (a slide joint 1e10 m out, MuJoCo's limit, after
+// this step). The same out there at the start is a clear error.
+TEST(WorldStep, AStepThatLeavesAStateMuJoCoRefusesIsUndone) {
+  TempDir dir;
+  const char* scene = R"(<mujoco>
+  <worldbody>
+    <geom type="plane" size="1 1 0.1"/>
+    <body name="sled" pos="0 0 0.2"><joint type="slide" axis="1 0 0"/>
+      <geom type="box" size="0.05 0.05 0.05"/></body>
+  </worldbody>
+  <keyframe><key qpos="%s" qvel="9e9"/></keyframe>
+  <deformable><tetbody name="cube" shape="box" size="0.05 0.05 0.05" pos="0 0.5 0.05"/></deformable>
+</mujoco>)";
+  char text[1024];
+  std::snprintf(text, sizeof(text), scene, "9.99e9");
+  std::unique_ptr<World> world = World::Load(dir.Write("far.xml", text));
+  const WorldState before = StateOf(*world);
+  world->Step();
+  EXPECT_EQ(world->metrics().status, StepStatus::kDiverged);
+  EXPECT_NE(world->metrics().message.find(
+                "MuJoCo's step left a non-finite or huge position qpos[0] at step 0; the step "
+                "is undone"),
+            std::string::npos)
+      << world->metrics().message;
+  EXPECT_TRUE(StateOf(*world) == before);
+  std::snprintf(text, sizeof(text), scene, "1.01e10");
+  const std::string path = dir.Write("farther.xml", text);
+  EXPECT_NE(ErrorOf(path).find(path + ": the initial state (the first keyframe) has qpos[0] = "
+                                      "1.01e+10, which MuJoCo does not step"),
+            std::string::npos)
+      << ErrorOf(path);
+}
 // A body of eight 5 cm balls falling onto a plane from `height`, or set on
 // it by the first keyframe, beside a soft cube, with MuJoCo's stack
 // `nstack` numbers: 300 hold the step before the balls land, not the one
@@ -1302,11 +1384,14 @@ TEST(WorldStep, AStepBeyondMuJoCosStackIsAStatusAndTheWorldStopsThere) {
   TempDir dir("tetcosim_world_stack");
   std::unique_ptr<World> world = World::Load(dir.Write("small.xml", BallsOnAPlane(300)));
   long failed_at = -1;
+  WorldState before;  // the state the step that failed started from
   for (long step = 0; step < 200 && failed_at < 0; ++step) {
+    before = StateOf(*world);
     world->Step();
     if (world->metrics().status != StepStatus::kOk) failed_at = step;
   }
   ASSERT_GT(failed_at, 0) << "the balls fall for some steps first";
+  EXPECT_TRUE(StateOf(*world) == before) << "the step is undone";
   EXPECT_EQ(world->metrics().status, StepStatus::kFailed) << world->metrics().message;
   const std::string message = world->metrics().message;
   EXPECT_NE(message.find("MuJoCo failed step " + std::to_string(failed_at) + ": Stack overflow"),
@@ -1322,10 +1407,13 @@ TEST(WorldStep, AStepBeyondMuJoCosStackIsAStatusAndTheWorldStopsThere) {
   EXPECT_EQ(world->metrics().message, message);
   EXPECT_EQ(world->time(), time);
   EXPECT_EQ(world->steps(), failed_at);
-  EXPECT_TRUE(world->deformable(0).positions().allFinite());
+  EXPECT_TRUE(StateOf(*world) == before);
   // with the stack of the failure's advice, the same steps go through
   std::unique_ptr<World> large = World::Load(dir.Write("large.xml", BallsOnAPlane(4000)));
   for (long step = 0; step <= failed_at + 20; ++step) {
+    if (step == failed_at) {
+      EXPECT_TRUE(StateOf(*large) == before);
+    }
     large->Step();
     ASSERT_EQ(large->metrics().status, StepStatus::kOk) << large->metrics().message;
   }
@@ -1346,38 +1434,62 @@ TEST(WorldLoad, AnInitialStateBeyondMuJoCosStackIsAClearError) {
   EXPECT_EQ(ErrorOf(dir.Write("large.xml", BallsOnAPlane(4000, keyframe))), "");
 }
 
-// A reset inside mj_step2 (a huge force on the box while the cube lies on
-// it, so that its acceleration is beyond what MuJoCo accepts) puts the box
-// back at its initial pose, and MuJoCo steps it once from rest: with
-// substeps, the box is not then moved on along the substeps' path (which
-// the force had thrown far out).
-TEST(WorldStep, ARigidResetWithSubstepsLeavesTheBodiesWhereMuJoCoPutThem) {
+// A step undone with substeps, which moved the box and the cube along
+// their paths before MuJoCo's step, and set friction springs and warm
+// starts: a reset inside mj_step2 (a huge force on the box while the cube
+// lies on it, so that its acceleration is beyond what MuJoCo accepts, and
+// a force on it the user sets), or a non-finite force on a vertex of the
+// cube. The step is undone, the forces set too, and the world goes on as if
+// the step had never been tried, bit for bit.
+TEST(WorldStep, AStepUndoneWithSubstepsLeavesNoTrace) {
   TempDir dir;
   std::string scene =
       ReadFileContents(std::string(TETCOSIM_SOURCE_DIR) + "/models/scenes/cube_on_box.xml");
   const std::string contact = "<contact method=\"consistent\" friction=\"0.6\"/>";
   ASSERT_NE(scene.find(contact), std::string::npos);
   scene.replace(scene.find(contact), contact.size(), contact + "<solver substeps=\"3\"/>");
-  std::unique_ptr<World> world = World::Load(dir.Write("substeps.xml", scene));
-  for (int s = 0; s < 150 && world->metrics().colliding_points == 0; ++s) world->Step();
-  ASSERT_GT(world->metrics().colliding_points, 0) << "the cube lies on the box";
-  const mjModel* m = world->mj_model();
-  world->SetController([](World& w) { w.mj_data()->qfrc_applied[2] = 1e15; });
-  world->Step();
-  EXPECT_EQ(world->metrics().status, StepStatus::kDiverged);
-  EXPECT_NE(world->metrics().message.find("MuJoCo found a non-finite or huge acceleration"),
-            std::string::npos)
-      << world->metrics().message;
-  // one step from rest at qpos0 under gravity: dt^2 g = 4e-5 m
-  for (int i = 0; i < m->nq; ++i) {
-    EXPECT_NEAR(world->mj_data()->qpos[i], m->qpos0[i], 1e-4) << "qpos " << i;
+  const std::string path = dir.Write("substeps.xml", scene);
+  const std::pair<std::function<void(World&)>, std::string> failures[] = {
+      {[](World& w) {
+         w.mj_data()->xfrc_applied[6 * 1 + 0] = 3.0;
+         w.mj_data()->qfrc_applied[2] = 1e15;
+       },
+       "MuJoCo found a non-finite or huge acceleration qacc[2] at step "},
+      {[](World& w) { w.deformable(0).applied_forces()(5, 2) = std::nan(""); },
+       "tetbody 'cube' vertex 5 became non-finite (its velocity, position or a force on it) at "
+       "step "}};
+  for (const auto& [failure, message] : failures) {
+    SCOPED_TRACE(message);
+    std::unique_ptr<World> tried = World::Load(path);
+    std::unique_ptr<World> untried = World::Load(path);
+    // (a force of the user's on the box all along, beside the contact
+    // forces: xfrc_applied holds their sum)
+    tried->mj_data()->xfrc_applied[6 * 1 + 1] = 0.0123;
+    untried->mj_data()->xfrc_applied[6 * 1 + 1] = 0.0123;
+    int steps = 0;
+    for (; steps < 400 && tried->metrics().stuck_contacts < 8; ++steps) {
+      tried->Step();
+      untried->Step();
+    }
+    ASSERT_GE(tried->metrics().stuck_contacts, 8) << "the cube lies on the box, held by friction";
+    const WorldState before = StateOf(*tried);
+    tried->SetController(failure);
+    tried->Step();
+    EXPECT_EQ(tried->metrics().status, StepStatus::kDiverged);
+    EXPECT_NE(tried->metrics().message.find(message + std::to_string(steps)), std::string::npos)
+        << tried->metrics().message;
+    EXPECT_TRUE(StateOf(*tried) == before);
+    EXPECT_TRUE(tried->deformable(0).applied_forces().isZero(0.0));
+    tried->SetController(nullptr);
+    for (int s = 0; s < 50; ++s) {
+      tried->Step();
+      untried->Step();
+      ASSERT_EQ(tried->metrics().status, StepStatus::kOk) << tried->metrics().message;
+    }
+    EXPECT_TRUE(StateOf(*tried) == StateOf(*untried));
   }
 }
 
-// A scene whose meshes would need more memory than there is is an error at
-// the element that goes over, before any mesh is built (else the kernel
-// kills the process while it builds them). cube_on_box's deformable has 384
-// tetrahedra (about 0.6 MB) and its rigid proxy 384 (about 0.23 MB).
 // The two-word keywords of <contact> and <solver>: each word read as
 // itself, and the defaults where they are absent.
 TEST(WorldLoad, KeywordAttributesAreRead) {
@@ -1404,6 +1516,10 @@ TEST(WorldLoad, KeywordAttributesAreRead) {
          true);
 }
 
+// A scene whose meshes would need more memory than there is is an error at
+// the element that goes over, before any mesh is built (else the kernel
+// kills the process while it builds them). cube_on_box's deformable has 384
+// tetrahedra (about 0.6 MB) and its rigid proxy 384 (about 0.23 MB).
 TEST(WorldLoad, MemoryBeyondTheLimitIsAClearError) {
   const std::string path = std::string(TETCOSIM_SOURCE_DIR) + "/models/scenes/cube_on_box.xml";
   for (const auto& [limit, message] :
@@ -2046,6 +2162,76 @@ TEST(RunCommand, AFailedStepEndsTheRunAtOnceWithValidOutputs) {
   long rows = -1;  // (the header)
   while (std::getline(steps_csv, line)) ++rows;
   EXPECT_EQ(rows, steps);
+}
+
+// A run that diverges (an arm on a hinge whose position servo is too stiff
+// for the time step, beside a box for which MuJoCo drops contacts) ends
+// with the state of the last step done, whole: the summary's time, final
+// energies and MuJoCo's warnings (which MuJoCo's reset cleared) agree with
+// the last row of steps.csv, and the last frame is that state's.
+TEST(RunCommand, ADivergedRunEndsWithTheLastStepDone) {
+  TempDir dir("tetcosim_run_diverged");
+  dir.Write("servo.xml", R"(<mujoco>
+  <size nconmax="2"/>
+  <worldbody>
+    <geom type="plane" size="1 1 0.1"/>
+    <body><freejoint/><geom type="box" size="0.1 0.1 0.1"/></body>
+    <body name="arm" pos="0 0 0.5"><joint name="hinge" axis="0 1 0"/>
+      <geom type="capsule" fromto="0 0 0 0.2 0 0" size="0.02"/></body>
+  </worldbody>
+  <actuator><position joint="hinge" kp="6000"/></actuator>
+  <keyframe><key qpos="0 0 0.1 1 0 0 0 0.1"/></keyframe>
+  <deformable>
+    <tetbody name="cube" shape="box" size="0.05 0.05 0.05" pos="0.5 0 0.05" resolution="2"/>
+  </deformable>
+</mujoco>)");
+  const auto [status, text] = RunShell("cd " + dir.path().string() + " && " + TETCOSIM_BINARY +
+                                       " run servo.xml --duration 1 --out out 2>&1");
+  ASSERT_TRUE(WIFEXITED(status));
+  EXPECT_EQ(WEXITSTATUS(status), 1) << text;
+  std::ifstream summary_file(dir.path() / "out" / "summary.json");
+  const nlohmann::json summary = nlohmann::json::parse(summary_file);
+  ASSERT_EQ(summary["status"], "diverged") << summary;
+  EXPECT_NE(summary["message"].get<std::string>().find("the step is undone"), std::string::npos);
+  const long steps = summary["steps"].get<long>();
+  ASSERT_GT(steps, 0);
+  const double time = summary["sim_time"].get<double>();
+  EXPECT_NEAR(time, static_cast<double>(steps) * summary["dt"].get<double>(), 1e-12);
+  // steps.csv's last row: step, time, ..., kinetic energies in columns 6 and 7
+  std::ifstream steps_csv(dir.path() / "out" / "steps.csv");
+  std::string line, last;
+  long rows = -1;  // (the header)
+  while (std::getline(steps_csv, line)) {
+    ++rows;
+    last = line;
+  }
+  EXPECT_EQ(rows, steps);
+  std::vector<double> row;
+  std::istringstream fields(last);
+  for (std::string field; std::getline(fields, field, ',');) row.push_back(std::stod(field));
+  ASSERT_GE(row.size(), 7u);
+  EXPECT_EQ(row[0], static_cast<double>(steps));
+  EXPECT_NEAR(row[1], time, 1e-9 * time);
+  const nlohmann::json& energy = summary["final_kinetic_energy"];
+  EXPECT_NEAR(row[5], energy["deformable"].get<double>(), 1e-8 * row[5]);
+  EXPECT_NEAR(row[6], energy["rigid"].get<double>(), 1e-8 * row[6]);
+  // the last frame: the final state, finite
+  std::ifstream bodies_csv(dir.path() / "out" / "bodies.csv");
+  std::getline(bodies_csv, line);  // (the header)
+  double last_time = -1.0;
+  while (std::getline(bodies_csv, line)) {
+    std::istringstream frame(line);
+    std::string field;
+    std::getline(frame, field, ',');
+    std::getline(frame, field, ',');
+    last_time = std::stod(field);
+    std::getline(frame, field, ',');  // (the body's name: no comma in this scene)
+    while (std::getline(frame, field, ',')) EXPECT_TRUE(std::isfinite(std::stod(field))) << line;
+  }
+  EXPECT_NEAR(last_time, time, 1e-9 * time);
+  // MuJoCo warned of dropped contacts in every step and at loading
+  ASSERT_EQ(summary["mujoco_warnings"].size(), 1u) << summary["mujoco_warnings"];
+  EXPECT_EQ(summary["mujoco_warnings"][0]["count"].get<long>(), steps + 1);
 }
 
 // Under nohup (SIGHUP ignored from the start) a hangup does not stop the
