@@ -244,6 +244,11 @@ class CoupledStepWorkspace {
 // `rigid` (may be null) holds the trees and points of contacts with
 // rigid_point >= 0, and the pins its trees carry. `workspace` (may be
 // null: the step makes its own) is the caller's CoupledStepWorkspace.
+// A body whose new velocities or positions, or whose solve's residual (a
+// non-finite force), are not finite at a vertex is not committed, and the
+// report names the first such body and vertex (kDiverged); the other
+// bodies are. A caller that must undo the whole step keeps each body's
+// DeformableBody::Memory (World::Step does).
 CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
                               std::span<ContactPoint> contacts,
                               const ContactSettings& contact_settings, const StepSettings& settings,

@@ -10,7 +10,9 @@
 //
 // Run() steps the world, calling the controller (if any) before each step and
 // feeding every step to the RolloutMetrics; it stops early, returning false,
-// when a step reports a non-finite state.
+// when a step reports a non-finite state or MuJoCo's failure (the world, and
+// Summarize(), then hold the state of the last step done: World::Step undoes
+// the step).
 
 #include <functional>
 #include <memory>
