@@ -115,9 +115,10 @@ class World {
 
   // Advances everything by one MuJoCo time step. A step that cannot be
   // completed is undone and reported in metrics().status, with a message:
-  // kDiverged for a non-finite deformable state, or a rigid-body state
-  // MuJoCo finds bad (MuJoCo resets its bodies, and clears its warnings and
-  // the controls, and warns); kFailed for a fatal error MuJoCo raises in the
+  // kDiverged for a deformable's velocity, position or a force on a vertex
+  // not finite, or a rigid-body state MuJoCo finds bad, or would at the
+  // next step (MuJoCo resets its bodies, and clears its warnings and the
+  // controls, and warns); kFailed for a fatal error MuJoCo raises in the
   // step (its stack too small for the step's contacts, say: mujoco_errors.h),
   // with MuJoCo's message and what to do, after which every later Step()
   // does nothing but report the same. Undone: the world is as the step found
