@@ -162,8 +162,9 @@ class DeformableBody {
   // Pieces of a step, for stepping bodies coupled by contact
   // (coupled_step.h). PrepareStep assembles the system A v+ = b (without the
   // pins, which the caller prescribes); FinishStep commits v+ (#V x 3, flat)
-  // if it and the residual are finite, and takes the pin forces from residual = A_total v+ -
-  // b_total. (Eigen's own thread count is the caller's: StepCoupled sets it.)
+  // if it and the residual are finite, and takes the pin forces from
+  // residual = A_total v+ - b_total. (Eigen's own thread count is the
+  // caller's: StepCoupled sets it.)
   void PrepareStep(const StepSettings& settings);
   const Eigen::SparseMatrix<double, Eigen::RowMajor, int>& system_matrix() const { return A_; }
   const Eigen::VectorXd& system_rhs() const { return b_; }

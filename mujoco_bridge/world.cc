@@ -185,6 +185,23 @@ std::array<StateArray, 10> StateArrays(const mjModel* m) {
            {&mjData::userdata, m->nuserdata}}};
 }
 
+// The first of qpos, then qvel, that MuJoCo's mj_checkPos or mj_checkVel
+// would reset its state for (mju_isBad: not finite, or beyond mjMAXVAL in
+// size), or none.
+struct BadState {
+  bool velocity = false;  // qvel, else qpos
+  int index = 0;
+};
+std::optional<BadState> FirstBadState(const mjModel* m, const mjData* d) {
+  for (int i = 0; i < m->nq; ++i) {
+    if (mju_isBad(d->qpos[i])) return BadState{false, i};
+  }
+  for (int i = 0; i < m->nv; ++i) {
+    if (mju_isBad(d->qvel[i])) return BadState{true, i};
+  }
+  return std::nullopt;
+}
+
 // A MuJoCo body's motion, world frame: the velocity of its centre of mass
 // xipos, its angular velocity, and its spin (angular momentum about xipos,
 // with the principal inertia in the inertial frame ximat).
@@ -699,19 +716,15 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
                 MuJoCoErrorAdvice(m, e.what()));
   }
   mjData* d = world->data_;
-  // a state MuJoCo would reset at the first step (mj_checkPos, mj_checkVel)
-  for (int k = 0; k < 2; ++k) {
-    const mjtNum* values = k == 0 ? d->qpos : d->qvel;
-    const int length = k == 0 ? m->nq : m->nv;
-    for (int i = 0; i < length; ++i) {
-      if (!mju_isBad(values[i])) continue;
-      std::ostringstream message;
-      message << "the initial state (" << (m->nkey > 0 ? "the first keyframe" : "the model's")
-              << ") has " << (k == 0 ? "qpos[" : "qvel[") << i << "] = " << values[i]
-              << ", which MuJoCo does not step (it takes values up to " << mjMAXVAL
-              << " in size); give the joint a smaller one";
-      ThrowAt(scene_path, 0, message.str());
-    }
+  // a state MuJoCo would reset at the first step
+  if (const std::optional<BadState> bad = FirstBadState(m, d)) {
+    std::ostringstream message;
+    message << "the initial state (" << (m->nkey > 0 ? "the first keyframe" : "the model's")
+            << ") has " << (bad->velocity ? "qvel[" : "qpos[") << bad->index
+            << "] = " << (bad->velocity ? d->qvel : d->qpos)[bad->index]
+            << ", which MuJoCo does not step (it takes values up to " << mjMAXVAL
+            << " in size); give the joint a smaller one";
+    ThrowAt(scene_path, 0, message.str());
   }
 
   // rigid proxies
@@ -2205,15 +2218,11 @@ void World::StepOnce() {
   // of the next: checked here as MuJoCo does, so that every step done
   // leaves a state MuJoCo takes
   bool left_bad = false;
-  for (int k = 0; k < 2 && bad_state < 0; ++k) {
-    const mjtNum* values = k == 0 ? d->qpos : d->qvel;
-    const int length = k == 0 ? m->nq : m->nv;
-    for (int i = 0; i < length && bad_state < 0; ++i) {
-      if (mju_isBad(values[i])) {
-        bad_state = k;
-        bad_index = i;
-        left_bad = true;
-      }
+  if (bad_state < 0) {
+    if (const std::optional<BadState> bad = FirstBadState(m, d)) {
+      bad_state = bad->velocity ? 1 : 0;  // (kBadState's order)
+      bad_index = bad->index;
+      left_bad = true;
     }
   }
   if (bad_state >= 0) {

@@ -15,6 +15,7 @@
 #include <set>
 #include <sstream>
 #include <string>
+#include <tuple>
 #include <utility>
 #include <vector>
 
@@ -1293,7 +1294,8 @@ TEST(WorldStep, AStepMuJoCoFindsABadStateInIsUndoneEveryTime) {
 // MuJoCo checks a step's positions and velocities at the next step's
 // start: the world checks them as the step ends, so that a step done leaves
 // a state MuJoCo takes (a slide joint 1e10 m out, MuJoCo's limit, after
-// this step). The same out there at the start is a clear error.
+// this step). The same out there at the start, or as fast, is a clear
+// error.
 TEST(WorldStep, AStepThatLeavesAStateMuJoCoRefusesIsUndone) {
   TempDir dir;
   const char* scene = R"(<mujoco>
@@ -1302,11 +1304,11 @@ TEST(WorldStep, AStepThatLeavesAStateMuJoCoRefusesIsUndone) {
     <body name="sled" pos="0 0 0.2"><joint type="slide" axis="1 0 0"/>
       <geom type="box" size="0.05 0.05 0.05"/></body>
   </worldbody>
-  <keyframe><key qpos="%s" qvel="9e9"/></keyframe>
+  <keyframe><key qpos="%s" qvel="%s"/></keyframe>
   <deformable><tetbody name="cube" shape="box" size="0.05 0.05 0.05" pos="0 0.5 0.05"/></deformable>
 </mujoco>)";
   char text[1024];
-  std::snprintf(text, sizeof(text), scene, "9.99e9");
+  std::snprintf(text, sizeof(text), scene, "9.99e9", "9e9");
   std::unique_ptr<World> world = World::Load(dir.Write("far.xml", text));
   const WorldState before = StateOf(*world);
   world->Step();
@@ -1317,12 +1319,15 @@ TEST(WorldStep, AStepThatLeavesAStateMuJoCoRefusesIsUndone) {
             std::string::npos)
       << world->metrics().message;
   EXPECT_TRUE(StateOf(*world) == before);
-  std::snprintf(text, sizeof(text), scene, "1.01e10");
-  const std::string path = dir.Write("farther.xml", text);
-  EXPECT_NE(ErrorOf(path).find(path + ": the initial state (the first keyframe) has qpos[0] = "
-                                      "1.01e+10, which MuJoCo does not step"),
-            std::string::npos)
-      << ErrorOf(path);
+  for (const auto& [qpos, qvel, bad] : {std::tuple{"1.01e10", "9e9", "qpos[0] = 1.01e+10"},
+                                        std::tuple{"0", "-1.01e10", "qvel[0] = -1.01e+10"}}) {
+    std::snprintf(text, sizeof(text), scene, qpos, qvel);
+    const std::string path = dir.Write("farther.xml", text);
+    EXPECT_NE(ErrorOf(path).find(path + ": the initial state (the first keyframe) has " + bad +
+                                 ", which MuJoCo does not step"),
+              std::string::npos)
+        << ErrorOf(path);
+  }
 }
 
 // A body of eight 5 cm balls falling onto a plane from `height`, or set on
