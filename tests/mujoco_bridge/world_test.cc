@@ -58,6 +58,21 @@ double PredictionError(const World& world) {
   return largest;
 }
 
+// A CSV file tetcosim wrote, line by line (the header first), and a line's
+// fields (for lines whose names hold no comma).
+std::vector<std::string> CsvLines(const std::filesystem::path& path) {
+  std::ifstream file(path);
+  std::vector<std::string> lines;
+  for (std::string line; std::getline(file, line);) lines.push_back(line);
+  return lines;
+}
+std::vector<std::string> CsvFields(const std::string& line) {
+  std::istringstream fields(line);
+  std::vector<std::string> result;
+  for (std::string field; std::getline(fields, field, ',');) result.push_back(field);
+  return result;
+}
+
 std::string ErrorOf(const std::string& path, const WorldOptions& options = {}) {
   try {
     World::Load(path, options);
@@ -2020,25 +2035,18 @@ TEST(RunCommand, TerminatedRunKeepsValidOutputs) {
   const long steps = summary["steps"].get<long>();
   EXPECT_GE(steps, 19);
   EXPECT_LT(steps, 500000);
-  std::ifstream steps_csv(out + "/steps.csv");
-  std::string header, line;
-  std::getline(steps_csv, header);
-  const auto columns = std::count(header.begin(), header.end(), ',');
-  long rows = 0;
-  while (std::getline(steps_csv, line)) {
-    EXPECT_EQ(std::count(line.begin(), line.end(), ','), columns) << "row " << rows;
-    ++rows;
+  const std::vector<std::string> rows = CsvLines(out + "/steps.csv");
+  ASSERT_FALSE(rows.empty());
+  const auto columns = std::count(rows[0].begin(), rows[0].end(), ',');
+  for (size_t r = 1; r < rows.size(); ++r) {
+    EXPECT_EQ(std::count(rows[r].begin(), rows[r].end(), ','), columns) << "row " << r - 1;
   }
-  EXPECT_EQ(rows, steps);
+  EXPECT_EQ(static_cast<long>(rows.size()) - 1, steps);
   // the last frame is the state the run stopped in
-  std::ifstream bodies_csv(out + "/bodies.csv");
-  std::string last;
-  while (std::getline(bodies_csv, line)) last = line;
-  std::stringstream row(last);
-  std::string frame, time;
-  std::getline(row, frame, ',');
-  std::getline(row, time, ',');
-  EXPECT_NEAR(std::stod(time), summary["sim_time"].get<double>(), 1e-6) << last;
+  const std::vector<std::string> frames = CsvLines(out + "/bodies.csv");
+  ASSERT_GT(frames.size(), 1u);
+  const std::string& last = frames.back();
+  EXPECT_NEAR(std::stod(CsvFields(last)[1]), summary["sim_time"].get<double>(), 1e-6) << last;
 }
 
 // Names with commas, quotes and markup, and long ones, come through every
@@ -2167,11 +2175,7 @@ TEST(RunCommand, AFailedStepEndsTheRunAtOnceWithValidOutputs) {
   EXPECT_NE(summary["message"].get<std::string>().find("Stack overflow"), std::string::npos);
   const long steps = summary["steps"].get<long>();
   EXPECT_GT(steps, 0);
-  std::ifstream steps_csv(dir.path() / "out" / "steps.csv");
-  std::string line;
-  long rows = -1;  // (the header)
-  while (std::getline(steps_csv, line)) ++rows;
-  EXPECT_EQ(rows, steps);
+  EXPECT_EQ(static_cast<long>(CsvLines(dir.path() / "out" / "steps.csv").size()) - 1, steps);
 }
 
 // A run that diverges (an arm on a hinge whose position servo is too stiff
@@ -2208,17 +2212,11 @@ TEST(RunCommand, ADivergedRunEndsWithTheLastStepDone) {
   const double time = summary["sim_time"].get<double>();
   EXPECT_NEAR(time, static_cast<double>(steps) * summary["dt"].get<double>(), 1e-12);
   // steps.csv's last row: step, time, ..., kinetic energies in columns 6 and 7
-  std::ifstream steps_csv(dir.path() / "out" / "steps.csv");
-  std::string line, last;
-  long rows = -1;  // (the header)
-  while (std::getline(steps_csv, line)) {
-    ++rows;
-    last = line;
-  }
-  EXPECT_EQ(rows, steps);
+  const std::vector<std::string> rows = CsvLines(dir.path() / "out" / "steps.csv");
+  ASSERT_GT(rows.size(), 1u);
+  EXPECT_EQ(static_cast<long>(rows.size()) - 1, steps);
   std::vector<double> row;
-  std::istringstream fields(last);
-  for (std::string field; std::getline(fields, field, ',');) row.push_back(std::stod(field));
+  for (const std::string& field : CsvFields(rows.back())) row.push_back(std::stod(field));
   ASSERT_GE(row.size(), 7u);
   EXPECT_EQ(row[0], static_cast<double>(steps));
   EXPECT_NEAR(row[1], time, 1e-9 * time);
@@ -2226,19 +2224,16 @@ TEST(RunCommand, ADivergedRunEndsWithTheLastStepDone) {
   EXPECT_NEAR(row[5], energy["deformable"].get<double>(), 1e-8 * row[5]);
   EXPECT_NEAR(row[6], energy["rigid"].get<double>(), 1e-8 * row[6]);
   // the last frame: the final state, finite
-  std::ifstream bodies_csv(dir.path() / "out" / "bodies.csv");
-  std::getline(bodies_csv, line);  // (the header)
-  double last_time = -1.0;
-  while (std::getline(bodies_csv, line)) {
-    std::istringstream frame(line);
-    std::string field;
-    std::getline(frame, field, ',');
-    std::getline(frame, field, ',');
-    last_time = std::stod(field);
-    std::getline(frame, field, ',');  // (the body's name: no comma in this scene)
-    while (std::getline(frame, field, ',')) EXPECT_TRUE(std::isfinite(std::stod(field))) << line;
+  // (frame, time, body, then numbers; the body's name has no comma here)
+  const std::vector<std::string> frames = CsvLines(dir.path() / "out" / "bodies.csv");
+  ASSERT_GT(frames.size(), 1u);
+  for (size_t r = 1; r < frames.size(); ++r) {
+    const std::vector<std::string> fields = CsvFields(frames[r]);
+    for (size_t k = 3; k < fields.size(); ++k) {
+      EXPECT_TRUE(std::isfinite(std::stod(fields[k]))) << frames[r];
+    }
   }
-  EXPECT_NEAR(last_time, time, 1e-9 * time);
+  EXPECT_NEAR(std::stod(CsvFields(frames.back())[1]), time, 1e-9 * time);
   // MuJoCo warned of dropped contacts in every step and at loading
   ASSERT_EQ(summary["mujoco_warnings"].size(), 1u) << summary["mujoco_warnings"];
   EXPECT_EQ(summary["mujoco_warnings"][0]["count"].get<long>(), steps + 1);
