@@ -55,8 +55,9 @@ struct AttachSpec {
   std::string tetbody;  // the deformable
   std::string body;     // the MuJoCo body it is glued to
   std::vector<int> vertices;
-  std::optional<std::pair<Eigen::Vector3d, Eigen::Vector3d>> box;  // world-frame min, max at load
-  std::optional<std::pair<Eigen::Vector3d, double>> sphere;        // world-frame centre, radius
+  // world frame, in the model's own pose (qpos0: World::PlaceGluedTetbodies)
+  std::optional<std::pair<Eigen::Vector3d, Eigen::Vector3d>> box;  // min, max
+  std::optional<std::pair<Eigen::Vector3d, double>> sphere;        // centre, radius
 };
 
 struct SolverSpec {

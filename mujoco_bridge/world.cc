@@ -783,15 +783,14 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
     add_proxy(body, std::move(raw), X_BM, friction, spec.line, spec.file);
   }
 
-  // attachments: pins that follow a MuJoCo body
+  // attachments: pins that follow a MuJoCo body. A glued tetbody's `pos`
+  // and its regions are in the model's own pose, where the MJCF puts the
+  // bodies (qpos0), as MuJoCo's own bodies are: it starts where the first
+  // keyframe takes the bodies it is glued to (PlaceGluedTetbodies)
+  const std::vector<Eigen::Isometry3d> moved = world->PlaceGluedTetbodies(scene_path);
   for (const AttachSpec& spec : scene.attachments) {
     int index = world->DeformableIndex(spec.tetbody);
     int body = mj_name2id(m, mjOBJ_BODY, spec.body.c_str());
-    if (body < 0) {
-      ThrowAt(scene_path, spec.line,
-              "<attach>: no MuJoCo body named '" + spec.body + "'; the scene has " +
-                  NamesOf(m, mjOBJ_BODY));
-    }
     DeformableBody& deformable = *world->bodies_[index];
     std::vector<int> vertices;
     for (int v : spec.vertices) {
@@ -803,7 +802,8 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
       vertices.push_back(v);
     }
     for (int v = 0; v < deformable.num_vertices(); ++v) {
-      Eigen::Vector3d p = deformable.positions().row(v).transpose();
+      // (in the model's own pose)
+      const Eigen::Vector3d p = moved[index].inverse() * deformable.positions().row(v).transpose();
       if (spec.box && (p.array() >= spec.box->first.array()).all() &&
           (p.array() <= spec.box->second.array()).all()) {
         vertices.push_back(v);
@@ -964,6 +964,81 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
   world->step_settings_.num_threads = options.threads;
   world->WarnOfStartingOverlaps(scene_path);
   return world;
+}
+
+std::vector<Eigen::Isometry3d> World::PlaceGluedTetbodies(const std::string& scene_path) {
+  const mjModel* m = model_;
+  const mjData* d = data_;
+  std::vector<Eigen::Isometry3d> moved(bodies_.size(), Eigen::Isometry3d::Identity());
+  // each tetbody's bodies, in <attach> order
+  std::vector<std::vector<std::pair<int, const AttachSpec*>>> glued(bodies_.size());
+  for (const AttachSpec& spec : scene_.attachments) {
+    const int body = mj_name2id(m, mjOBJ_BODY, spec.body.c_str());
+    if (body < 0) {
+      ThrowAt(scene_path, spec.line,
+              "<attach>: no MuJoCo body named '" + spec.body + "'; the scene has " +
+                  NamesOf(m, mjOBJ_BODY));
+    }
+    glued[DeformableIndex(spec.tetbody)].emplace_back(body, &spec);
+  }
+  if (m->nkey == 0) return moved;
+  mjData* own = nullptr;  // the model's own pose
+  CallMuJoCo([&] {
+    own = mj_makeData(m);
+    mj_kinematics(m, own);
+  });
+  const std::unique_ptr<mjData, void (*)(mjData*)> free_own(own, mj_deleteData);
+  // (exactly: a body the keyframe leaves in place moves nothing)
+  auto same_pose = [&](int body) {
+    return std::equal(d->xpos + 3 * body, d->xpos + 3 * body + 3, own->xpos + 3 * body) &&
+           std::equal(d->xmat + 9 * body, d->xmat + 9 * body + 9, own->xmat + 9 * body);
+  };
+  for (size_t i = 0; i < bodies_.size(); ++i) {
+    if (glued[i].empty()) continue;
+    DeformableBody& deformable = *bodies_[i];
+    const int first = glued[i][0].first;
+    const Eigen::Isometry3d move = BodyPose(d, first) * BodyPose(own, first).inverse();
+    // how far another body's move would put the tetbody's vertices from
+    // where the first's does
+    double size = 0.0;
+    for (int k = 0; k < deformable.num_vertices(); ++k) {
+      size = std::max(size, deformable.positions().row(k).norm());
+    }
+    for (const auto& [body, spec] : glued[i]) {
+      if (same_pose(body) && same_pose(first)) continue;
+      const Eigen::Isometry3d other = BodyPose(d, body) * BodyPose(own, body).inverse();
+      double apart = 0.0;
+      for (int k = 0; k < deformable.num_vertices(); ++k) {
+        const Eigen::Vector3d x = deformable.positions().row(k).transpose();
+        apart = std::max(apart, (other * x - move * x).norm());
+      }
+      if (apart > 1e-9 * std::max(1.0, size)) {
+        char message[500];
+        std::snprintf(message, sizeof(message),
+                      "<attach>: the first keyframe moves body '%s' and body '%s' apart, by up "
+                      "to %.3g m at tetbody '%s', which is glued to both where the model's own "
+                      "pose (qpos0) puts them; glue it to one of them, or start from a keyframe "
+                      "that keeps them as they are in the model",
+                      glued[i][0].second->body.c_str(), spec->body.c_str(), apart,
+                      deformable.name().c_str());
+        ThrowAt(scene_path, spec->line, message);
+      }
+    }
+    if (!same_pose(first)) {
+      const TetBodySpec& spec = scene_.tetbodies[i];
+      deformable.Reset(move * spec.pose, spec.velocity);
+      moved[i] = move;
+    }
+    const bool one_body = std::all_of(glued[i].begin(), glued[i].end(),
+                                      [&](const auto& entry) { return entry.first == first; });
+    if (!one_body) continue;
+    Positions& v = deformable.mutable_velocities();
+    for (int k = 0; k < deformable.num_vertices(); ++k) {
+      v.row(k) +=
+          RigidBodyPointVelocity(first, deformable.positions().row(k).transpose()).transpose();
+    }
+  }
+  return moved;
 }
 
 // Bodies placed inside each other (two soft cubes overlapping by half: the

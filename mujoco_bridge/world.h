@@ -254,6 +254,13 @@ class World {
 
   // a load warning for each pair of bodies that start deep inside each other
   void WarnOfStartingOverlaps(const std::string& scene_path);
+  // Each tetbody glued to bodies (<attach>) that the first keyframe moves
+  // from the model's own pose (qpos0, mocap bodies at their MJCF place),
+  // moved with them, rigidly; one glued to a single body also starts with
+  // its velocity (added to its own `vel`). Throws Error where the keyframe
+  // moves a tetbody's bodies apart, or an <attach> names no body. Returns
+  // each tetbody's move (the identity for most).
+  std::vector<Eigen::Isometry3d> PlaceGluedTetbodies(const std::string& scene_path);
   // mesh's warnings, as load_warnings() gives them: where, `element`, `file`
   // (empty for a generated shape)
   void AddLoadWarnings(const TetMesh& mesh, const std::string& scene_path, long line,

@@ -1584,7 +1584,9 @@ TEST(WorldLoad, BodyTooFarForDoublePrecisionIsAClearError) {
 }
 
 // A scene of a pad (15 g, E = 1e7 Pa) glued to a body of `mass` kg on two
-// slide joints (x, z) without damping, the body moving at 0.5 m/s along x.
+// slide joints (x, z) without damping, the body moving at 0.5 m/s along x
+// and the pad at rest (its `vel` takes off the body's, which a tetbody
+// glued to one body starts with).
 std::string PadOnFingerScene(const char* mass, const char* solver) {
   return std::string(
              "<mujoco><option timestep='0.001' gravity='0 0 -9.81'/><worldbody>\n"
@@ -1595,7 +1597,8 @@ std::string PadOnFingerScene(const char* mass, const char* solver) {
          mass + "' contype='0' conaffinity='0'/></body></worldbody>\n" +
          "<keyframe><key qvel='0.5 0'/></keyframe>\n<deformable>" + solver +
          "\n<tetbody name='pad' shape='box' size='0.006 0.025 0.025' resolution='2 4 4' "
-         "pos='0.011 0 0.2' density='500' young='1e7' poisson='0.3' damping='0 0.001'/>\n"
+         "pos='0.011 0 0.2' vel='-0.5 0 0' density='500' young='1e7' poisson='0.3' "
+         "damping='0 0.001'/>\n"
          "<attach tetbody='pad' body='finger' box='0.004 -0.1 -0.1 0.0051 0.1 0.3'/>\n"
          "</deformable></mujoco>";
 }
@@ -1744,6 +1747,143 @@ TEST(Attachments, ASoftStrapBetweenTwoBodiesExchangesMomentumWithBoth) {
   EXPECT_GT(largest_force[1], 0.1) << "N, the strap's pull on the right body";
   EXPECT_LT(worst_place, 1e-8) << "m, a pinned vertex left its place on its body";
   EXPECT_TRUE(turned[0] && turned[1]) << "each body turned back";
+}
+
+// A soft bob glued to the end of a light arm on a hinge (a compound
+// pendulum), the first keyframe turning the arm: the tetbody's `pos` and
+// its <attach> region are in the model's own pose (qpos0), as the MJCF's
+// bodies are, so the bob starts at the arm's end where the keyframe puts
+// it, unstrained, glued by the same vertices, and moving with the arm.
+// Before, it stayed where `pos` put it, glued to the turned arm there: a
+// pendulum whose bob hung straight below the pivot, and did not swing.
+std::string PendulumScene(const std::string& key) {
+  return R"(<mujoco>
+  <option timestep="0.001"/>
+  <worldbody>
+    <body name="arm" pos="0 0 1">
+      <joint name="hinge" type="hinge" axis="0 1 0"/>
+      <geom type="capsule" fromto="0 0 0 0 0 -0.5" size="0.005" mass="0.001" contype="0"
+            conaffinity="0"/>
+    </body>
+  </worldbody>
+  <keyframe><key )" +
+         key + R"(/></keyframe>
+  <deformable>
+    <tetbody name="bob" shape="box" size="0.05 0.05 0.05" resolution="4" pos="0 0 0.45"
+             young="1e7" density="1000"/>
+    <attach tetbody="bob" body="arm" box="-0.1 -0.1 0.49 0.1 0.1 0.51"/>
+  </deformable>
+</mujoco>)";
+}
+
+TEST(Attachments, AGluedTetbodyStartsWhereTheFirstKeyframeTakesItsBody) {
+  TempDir dir;
+  const double angle = 0.3, rate = 0.5;  // rad, rad/s
+  const std::unique_ptr<World> world = World::Load(
+      dir.Write("pendulum.xml", PendulumScene("qpos=\"" + std::to_string(angle) + "\" qvel=\"" +
+                                              std::to_string(rate) + "\"")));
+  const DeformableBody& bob = world->deformable(0);
+  const Eigen::Vector3d pivot(0.0, 0.0, 1.0);
+  const Eigen::AngleAxisd turn(angle, Eigen::Vector3d::UnitY());
+  // each vertex: the model's own place turned about the pivot, moving at
+  // omega x r
+  const Positions& rest = bob.mesh().positions();
+  double place = 0.0, velocity = 0.0;
+  for (int k = 0; k < bob.num_vertices(); ++k) {
+    const Eigen::Vector3d own = rest.row(k).transpose() + Eigen::Vector3d(0.0, 0.0, 0.45);
+    const Eigen::Vector3d x = pivot + turn * (own - pivot);
+    place = std::max(place, (bob.positions().row(k).transpose() - x).norm());
+    const Eigen::Vector3d v = Eigen::Vector3d(0.0, rate, 0.0).cross(x - pivot);
+    velocity = std::max(velocity, (bob.velocities().row(k).transpose() - v).norm());
+  }
+  EXPECT_LT(place, 1e-12) << "m";
+  EXPECT_LT(velocity, 1e-12) << "m/s";
+  // glued by its top face in the model's own pose (5 x 5 vertices at z = 0.5)
+  ASSERT_EQ(bob.pinned_vertices().size(), 25u);
+  for (int v : bob.pinned_vertices()) EXPECT_NEAR(rest(v, 2), 0.05, 1e-12) << v;
+  // and it swings on from there with its pins, without a jolt: the first
+  // step's pull on the arm is below the bob's weight and centripetal force
+  // (its lower part still falls: it starts unstrained), where a bob at
+  // rest would be jerked to the arm's 0.28 m/s within the step (270 N)
+  world->Step();
+  ASSERT_EQ(world->metrics().status, StepStatus::kOk) << world->metrics().message;
+  const double mass = bob.model().total_mass();
+  const double hold = mass * (9.81 * std::cos(angle) + rate * rate * 0.55);
+  const Eigen::Vector3d pull(world->coupling_forces().data() + 6 * world->BodyId("arm"));
+  EXPECT_LT(pull.norm(), hold);
+  EXPECT_GT(pull.norm(), 0.5 * hold);
+}
+
+// The same pendulum let go from 0.05 rad swings with a compound
+// pendulum's period, 2 pi sqrt(I / (m g d)) (1 + theta^2 / 16), I = m (d^2
+// + a^2 / 6) about the pivot for a cube of side a whose centre is d below
+// it (the arm's 1 g left out): measured 0.03% longer (the bob is soft);
+// its arm's fastest spin is 0.05 rad times 2 pi / T.
+TEST(Attachments, AGluedBobSwingsWithACompoundPendulumsPeriod) {
+  TempDir dir;
+  const std::unique_ptr<World> world =
+      World::Load(dir.Write("pendulum.xml", PendulumScene("qpos=\"0.05\"")));
+  const int arm = world->BodyId("arm");
+  const double dt = world->timestep();
+  std::vector<double> crossings;  // of the arm's spin upward through zero
+  double last = 0.0, fastest = 0.0;
+  for (int s = 1; s <= 3200; ++s) {
+    world->Step();
+    ASSERT_EQ(world->metrics().status, StepStatus::kOk) << world->metrics().message;
+    const double w = world->RigidBodyAngularVelocity(arm).y();
+    if (last < 0.0 && w >= 0.0) crossings.push_back((s - 1 + -last / (w - last)) * dt);
+    last = w;
+    fastest = std::max(fastest, std::abs(w));
+  }
+  ASSERT_EQ(crossings.size(), 2u);
+  const double d = 0.55, a = 0.1;
+  const double period = 2.0 * std::numbers::pi * std::sqrt((d * d + a * a / 6.0) / (9.81 * d)) *
+                        (1.0 + 0.05 * 0.05 / 16.0);
+  EXPECT_NEAR(crossings[1] - crossings[0], period, 1e-3 * period);
+  // swinging 0.05 rad each way (a bob left below the pivot swings 1e-5 rad)
+  EXPECT_NEAR(fastest, 0.05 * 2.0 * std::numbers::pi / period, 0.01 * fastest);
+}
+
+// A tetbody glued to two bodies is placed in the model's own pose: a
+// keyframe that moves the bodies apart leaves no place where it is glued
+// to both, which is an error; one that moves them together moves it too.
+TEST(Attachments, AKeyframeThatMovesATetbodysBodiesApartIsAnError) {
+  TempDir dir;
+  auto scene = [&](const std::string& key) {
+    return dir.Write("apart.xml", R"(<mujoco>
+  <worldbody>
+    <body name="base"><freejoint/>
+      <geom type="box" size="0.01 0.01 0.01" mass="0.1" contype="0" conaffinity="0"/>
+      <body name="left" pos="-0.11 0 0"><joint name="slide" type="slide" axis="1 0 0"/>
+        <geom type="box" size="0.01 0.02 0.02" mass="0.05" contype="0" conaffinity="0"/></body>
+      <body name="right" pos="0.11 0 0">
+        <geom type="box" size="0.01 0.02 0.02" mass="0.08" contype="0" conaffinity="0"/></body>
+    </body>
+  </worldbody>
+  <keyframe><key qpos=")" + key + R"("/></keyframe>
+  <deformable>
+    <tetbody name="strap" shape="box" size="0.1 0.01 0.005" resolution="6" young="1e5"/>
+    <attach tetbody="strap" body="left" box="-0.11 -0.1 -0.1 -0.09 0.1 0.1"/>
+    <attach tetbody="strap" body="right" box="0.09 -0.1 -0.1 0.11 0.1 0.1"/>
+  </deformable>
+</mujoco>)");
+  };
+  // the slide apart: an error at the second <attach>
+  try {
+    World::Load(scene("0 0 0 1 0 0 0 -0.03"));
+    FAIL() << "no error";
+  } catch (const Error& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("apart.xml:15: <attach>: the first keyframe moves body 'left' and body "
+                        "'right' apart, by up to 0.03 m at tetbody 'strap'"),
+              std::string::npos)
+        << what;
+  }
+  // the base, carrying both, 0.2 m up: the strap with it
+  const std::unique_ptr<World> world = World::Load(scene("0 0 0.2 1 0 0 0 0"));
+  const DeformableBody& strap = world->deformable(0);
+  EXPECT_NEAR(strap.CenterOfMass().z(), 0.2, 1e-12);
+  EXPECT_EQ(strap.pinned_vertices().size(), 2u * 7 * 7);
 }
 
 // With <solver rigid="explicit">, the pins' force reaches the body after the
