@@ -792,6 +792,7 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
     int index = world->DeformableIndex(spec.tetbody);
     int body = mj_name2id(m, mjOBJ_BODY, spec.body.c_str());
     DeformableBody& deformable = *world->bodies_[index];
+    const Eigen::Isometry3d to_own_pose = moved[index].inverse();
     std::vector<int> vertices;
     for (int v : spec.vertices) {
       if (v >= deformable.num_vertices()) {
@@ -802,8 +803,7 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
       vertices.push_back(v);
     }
     for (int v = 0; v < deformable.num_vertices(); ++v) {
-      // (in the model's own pose)
-      const Eigen::Vector3d p = moved[index].inverse() * deformable.positions().row(v).transpose();
+      const Eigen::Vector3d p = to_own_pose * deformable.positions().row(v).transpose();
       if (spec.box && (p.array() >= spec.box->first.array()).all() &&
           (p.array() <= spec.box->second.array()).all()) {
         vertices.push_back(v);
@@ -1005,7 +1005,7 @@ std::vector<Eigen::Isometry3d> World::PlaceGluedTetbodies(const std::string& sce
       size = std::max(size, deformable.positions().row(k).norm());
     }
     for (const auto& [body, spec] : glued[i]) {
-      if (same_pose(body) && same_pose(first)) continue;
+      if (body == first || (same_pose(body) && same_pose(first))) continue;
       const Eigen::Isometry3d other = BodyPose(d, body) * BodyPose(own, body).inverse();
       double apart = 0.0;
       for (int k = 0; k < deformable.num_vertices(); ++k) {
