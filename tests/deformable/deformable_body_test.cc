@@ -252,6 +252,57 @@ TEST(DeformableBody, CantileverApproachesEulerBernoulli) {
   EXPECT_LT(previous_error, 0.2);
 }
 
+// A uniaxial stress patch test: a free bar pulled at both ends by equal
+// and opposite uniform tractions sigma settles (backward Euler at large
+// steps, with mass damping) to a uniform stress, whose displacement field
+// is linear and which linear tetrahedra hold exactly: every vertex is where
+// a stretch of sigma / E along the bar and a thinning of nu sigma / E
+// across it take it. So E and nu both reach the elements as given (the
+// cantilever above sees E alone, at nu = 0: with lambda's 1 - 2 nu written
+// 1 - nu, or mu's 1 + nu written 1 + nu / 2, it passed and this did not),
+// for nu from 0 to 0.45.
+TEST(DeformableBody, ABarPulledAtItsEndsStretchesBySigmaOverEAndThinsByNu) {
+  const double E = 1e6, sigma = 1e3;  // Pa: a strain of 1e-3
+  const double length = 0.1;          // half the bar's length (m)
+  for (const double nu : {0.0, 0.3, 0.45}) {
+    auto model = Model("box:size=0.1,0.02,0.03:res=10,2,3", Material{E, nu, 1000, 20.0, 0.0});
+    DeformableBody body(model, "bar");
+    // the ends' traction as nodal forces: a third of sigma times the area of
+    // each surface triangle on an end to each of its corners
+    const Positions& X = model->mesh().positions();
+    const Triangles& surface = model->mesh().surface();
+    for (Eigen::Index f = 0; f < surface.rows(); ++f) {
+      for (const double end : {-1.0, 1.0}) {
+        bool on_end = true;
+        for (int k = 0; k < 3; ++k) on_end &= X(surface(f, k), 0) == end * length;
+        if (!on_end) continue;
+        const Eigen::Vector3d a = X.row(surface(f, 0)).transpose();
+        const Eigen::Vector3d b = X.row(surface(f, 1)).transpose();
+        const Eigen::Vector3d c = X.row(surface(f, 2)).transpose();
+        const double area = 0.5 * (b - a).cross(c - a).norm();
+        for (int k = 0; k < 3; ++k) {
+          body.applied_forces()(surface(f, k), 0) += end * sigma * area / 3;
+        }
+      }
+    }
+    StepSettings settings;
+    settings.dt = 0.1;
+    settings.gravity.setZero();
+    settings.solver = LinearSolver::kCholesky;
+    for (int s = 0; s < 100; ++s) ASSERT_EQ(body.Step(settings).status, StepStatus::kOk);
+    const double strain = sigma / E;
+    const Eigen::Vector3d stretch(1.0 + strain, 1.0 - nu * strain, 1.0 - nu * strain);
+    double worst = 0.0;
+    for (int v = 0; v < body.num_vertices(); ++v) {
+      const Eigen::Vector3d expected = stretch.cwiseProduct(X.row(v).transpose());
+      worst = std::max(worst, (body.positions().row(v).transpose() - expected).norm());
+    }
+    // (against the ends' 0.1 mm and the sides' 0 to 13.5 um)
+    EXPECT_LT(worst, 1e-9) << "m, nu = " << nu;
+    EXPECT_LT(body.KineticEnergy(), 1e-15) << "J, nu = " << nu;
+  }
+}
+
 struct DropResult {
   double max_depth_at_rest;
   double final_kinetic;
