@@ -1,15 +1,14 @@
 // A soft ball on a slope against a rigid ball's analytic answer, and
-// dropped on a floor. With
-// friction enough (mu above 2/7 tan theta for a uniform ball) it rolls
-// without slipping, its centre gaining speed at g sin theta / (1 + I / (m
-// h^2)) (5/7 g sin theta for a uniform ball), where I is its moment of
-// inertia about the axis through its centre and h its radius; with less it
-// slides, its centre at g (sin theta - mu cos theta), while friction spins
-// it up at mu m g cos theta h / I. I and h are the ball's own (lumped
-// masses on a polyhedron), measured as it is let go: h is its centre's
-// height then (the soft ball flattens and its centre sinks, but it rolls
-// at that radius: its spin times h is its speed).
-// These test friction's torque, not only its force (the blocks of
+// dropped on a floor. With friction enough (mu above 2/7 tan theta for a
+// uniform ball) it rolls without slipping, its centre gaining speed at g
+// sin theta / (1 + I / (m h^2)) (5/7 g sin theta for a uniform ball),
+// where I is its moment of inertia about the axis through its centre and
+// h its radius; with less it slides, its centre at g (sin theta - mu cos
+// theta), while friction spins it up at mu m g cos theta h / I. I and h
+// are the ball's own (lumped masses on a polyhedron), measured as it is
+// let go: h is its centre's height then (the soft ball flattens and its
+// centre sinks, but it rolls at that radius: its spin times h is its
+// speed). These test friction's torque, not only its force (the blocks of
 // friction_test.cc do not turn), on a MuJoCo plane, on the tetrahedral
 // proxy of a static box and on a stiff pinned deformable slab. Then a
 // rigid ball on a coarse slab, met as a geom and given a proxy; last, the
@@ -31,6 +30,7 @@
 #include <cmath>
 #include <cstdio>
 #include <memory>
+#include <numbers>
 #include <string>
 #include <vector>
 
@@ -41,7 +41,7 @@ namespace tetcosim {
 namespace {
 
 constexpr double kGravity = 9.81;
-constexpr double kTheta = 20.0 * M_PI / 180.0;
+constexpr double kTheta = 20.0 * std::numbers::pi / 180.0;
 
 enum class Floor { kPlaneGeom, kStaticProxy, kDeformableSlab };
 
