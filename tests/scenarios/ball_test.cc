@@ -179,7 +179,7 @@ Roll RunOnSlope(Floor floor, double mu, double timestep) {
 // flattens on the floor; measured, 0.7% at 2 ms and 1.3% at 1 ms, and
 // 0.2% and 0.7% for a ball of E = 1e6 Pa); the ball rolls (its mean
 // slip stays within 0.5% of its mean speed: without the friction springs
-// carried from step to step, 1.5 to 2%); and halving the step takes off
+// carried from step to step, 1.5 to 3.6%); and halving the step takes off
 // at least a fifth of what it lost (measured: a third).
 TEST(Rolling, ABallRollsDownASlopeAsARigidBallDoesLessTheStepsResistance) {
   const double mu = 0.5;
@@ -285,9 +285,9 @@ TEST(Rolling, ARigidBallRollsOverACoarseSlabsVerticesUnlessItHasAProxy) {
 // Dropped 0.2 m on a floor, with neither contact damping nor Rayleigh
 // damping, the soft ball rebounds slower than it hit (0.61, 0.75 and 0.85
 // of its speed at 2, 1 and 0.5 ms): backward Euler damps what moves fast
-// within a step (the contact's compression lasts about 25 ms, so 12 to 50
-// steps), and never adds energy. Each halving of the step takes at least a
-// quarter off the speed lost (measured: about 40%).
+// within a step (the contact lasts 22 ms, so 11 to 44 steps), and never
+// adds energy. Each halving of the step takes at least a quarter off the
+// speed lost (measured: 34% and 41%).
 TEST(Bouncing, ABallBouncesBackSlowerThanItHitAndLessSoAtSmallerSteps) {
   double last_loss = 1.0;
   for (const double dt : {0.002, 0.001, 0.0005}) {
