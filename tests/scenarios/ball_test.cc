@@ -49,14 +49,28 @@ const char* Name(Floor floor) {
   return floor == Floor::kPlaneGeom ? "plane" : floor == Floor::kStaticProxy ? "proxy" : "slab";
 }
 
-// the floor at z = 0 under gravity tilted by kTheta about y (the same as a
-// slope going down along +x), friction mu, and a ball of radius 5 cm (a
-// level-3 sphere: 10,240 tetrahedra, its 642 surface vertices about 8
-// degrees apart) resting on it
-std::string Scene(Floor floor, double mu, double timestep) {
-  char gravity[96], numbers[96];
-  std::snprintf(gravity, sizeof gravity, "%.17g 0 %.17g", kGravity * std::sin(kTheta),
+// <option>'s gravity tilted by kTheta about y: the same as a slope going
+// down along +x
+std::string TiltedGravity() {
+  char gravity[96];
+  std::snprintf(gravity, sizeof gravity, "gravity='%.17g 0 %.17g'", kGravity * std::sin(kTheta),
                 -kGravity * std::cos(kTheta));
+  return gravity;
+}
+
+// a stiff deformable slab 2 x 0.6 x 0.1 m of `cells`, its top at z = 0,
+// its bottom pinned to the static body 'anchor' (which the scene has)
+std::string PinnedSlab(const std::string& cells) {
+  return "<tetbody name='slab' shape='box' size='1 0.3 0.05' resolution='" + cells +
+         "' pos='0.3 0 -0.05' density='1000' young='1e8' poisson='0.3'/>"
+         "<attach tetbody='slab' body='anchor' box='-2 -1 -0.2 2 1 -0.09'/>";
+}
+
+// the floor at z = 0 under the tilted gravity, friction mu, and a ball of
+// radius 5 cm (a level-3 sphere: 10,240 tetrahedra, its 642 surface
+// vertices about 8 degrees apart) resting on it
+std::string Scene(Floor floor, double mu, double timestep) {
+  char numbers[96];
   std::snprintf(numbers, sizeof numbers, "timestep='%.17g'", timestep);
   const std::string friction = "friction='" + std::to_string(mu) + "'";
   std::string floor_xml, proxy_xml;
@@ -70,12 +84,9 @@ std::string Scene(Floor floor, double mu, double timestep) {
     proxy_xml = "<rigidtet body='slab' geom='slab' resolution='8'/>";
   } else {
     floor_xml = "<body name='anchor'/>";
-    proxy_xml =
-        "<tetbody name='slab' shape='box' size='1 0.3 0.05' resolution='16 6 2' "
-        "pos='0.3 0 -0.05' density='1000' young='1e8' poisson='0.3'/>"
-        "<attach tetbody='slab' body='anchor' box='-2 -1 -0.2 2 1 -0.09'/>";
+    proxy_xml = PinnedSlab("16 6 2");
   }
-  return std::string("<mujoco><option ") + numbers + " gravity='" + gravity + "'/><worldbody>" +
+  return std::string("<mujoco><option ") + numbers + " " + TiltedGravity() + "/><worldbody>" +
          floor_xml + "</worldbody><deformable><contact " + friction + "/>" + proxy_xml +
          "<tetbody name='ball' shape='sphere' size='0.05' resolution='3' pos='-0.5 0 0.05' "
          "density='1000' young='2e5' poisson='0.3'/></deformable></mujoco>";
@@ -246,19 +257,14 @@ TEST(Rolling, ABallWithTooLittleFrictionSlidesAsCoulombSaysAndSpinsUp) {
 TEST(Rolling, ARigidBallRollsOverACoarseSlabsVerticesUnlessItHasAProxy) {
   const double rigid = 5.0 / 7.0 * kGravity * std::sin(kTheta);
   for (const bool proxy : {false, true}) {
-    char gravity[96];
-    std::snprintf(gravity, sizeof gravity, "%.17g 0 %.17g", kGravity * std::sin(kTheta),
-                  -kGravity * std::cos(kTheta));
     const std::string scene =
-        std::string("<mujoco><option timestep='0.002' gravity='") + gravity +
-        "'/><worldbody><body name='anchor'/><body name='ball' pos='-0.5 0 0.0502'><freejoint/>"
+        "<mujoco><option timestep='0.002' " + TiltedGravity() +
+        "/><worldbody><body name='anchor'/><body name='ball' pos='-0.5 0 0.0502'><freejoint/>"
         "<geom name='ball' type='sphere' size='0.05' density='1000' friction='0.5'" +
         (proxy ? " contype='0' conaffinity='0'" : "") +
         "/></body></worldbody><deformable><contact friction='0.5'/>" +
         (proxy ? "<rigidtet body='ball' geom='ball' resolution='3'/>" : "") +
-        "<tetbody name='slab' shape='box' size='1 0.3 0.05' resolution='40 12 2' "
-        "pos='0.3 0 -0.05' density='1000' young='1e8' poisson='0.3'/>"
-        "<attach tetbody='slab' body='anchor' box='-2 -1 -0.2 2 1 -0.09'/></deformable></mujoco>";
+        PinnedSlab("40 12 2") + "</deformable></mujoco>";
     TempDir dir("tetcosim_ball");
     std::unique_ptr<World> world = World::Load(dir.Write("scene.xml", scene));
     const int ball = world->BodyId("ball");
@@ -313,7 +319,7 @@ TEST(Bouncing, ABallBouncesBackSlowerThanItHitAndLessSoAtSmallerSteps) {
     const double restitution = -rebound / impact;
     std::printf("dt %g s: hit at %.4f m/s, back at %.4f: %.3f\n", dt, -impact, rebound,
                 restitution);
-    EXPECT_NEAR(impact, -std::sqrt(2.0 * 9.81 * 0.2), 0.01) << dt;
+    EXPECT_NEAR(impact, -std::sqrt(2.0 * kGravity * 0.2), 0.01) << dt;
     EXPECT_LT(restitution, 1.0) << dt;
     EXPECT_LT(1.0 - restitution, 0.75 * last_loss) << dt;
     last_loss = 1.0 - restitution;
