@@ -77,7 +77,7 @@ ContactLinearization LinearizeContact(std::span<DeformableBody* const> bodies,
 
 void AddHalfSpaceContacts(int index, const DeformableBody& body, const Eigen::Vector3d& normal,
                           double offset, double kappa, double friction,
-                          std::vector<ContactPoint>& contacts) {
+                          std::vector<ContactPoint>& contacts, ContactArea rule) {
   const Eigen::VectorXd& areas = body.model().contact_areas();
   for (int v = 0; v < body.num_vertices(); ++v) {
     double depth = offset - normal.dot(body.positions().row(v).transpose());
@@ -87,7 +87,8 @@ void AddHalfSpaceContacts(int index, const DeformableBody& body, const Eigen::Ve
     contact.vertex_a = v;
     contact.depth = depth;
     contact.direction = normal;
-    contact.stiffness = kappa * areas[v];
+    contact.stiffness =
+        kappa * ContactAreaOf(rule, body.model().mesh(), body.positions(), v, normal, areas[v]);
     contact.friction = friction;
     contacts.push_back(contact);
   }

@@ -133,9 +133,10 @@ double DefaultContactPressureStiffness(const FemModel& model);
 
 // Contacts of body `index` with the static half-space n . x <= offset (n
 // unit, pointing out of the solid): one per vertex below the plane, with
-// stiffness kappa * contact area.
+// stiffness kappa * contact area (by `rule`, ContactAreaOf).
 void AddHalfSpaceContacts(int index, const DeformableBody& body, const Eigen::Vector3d& normal,
                           double offset, double kappa, double friction,
-                          std::vector<ContactPoint>& contacts);
+                          std::vector<ContactPoint>& contacts,
+                          ContactArea rule = ContactArea::kWhole);
 
 }  // namespace tetcosim

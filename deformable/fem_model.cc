@@ -42,6 +42,29 @@ double MeanSurfaceVertexArea(const TetMesh& m, const Eigen::VectorXd& contact_ar
   return surface_vertices > 0 ? area / surface_vertices : 0.0;
 }
 
+double FacingContactArea(const TetMesh& m, const Positions& positions, int vertex,
+                         const Eigen::Vector3d& direction, double area) {
+  const int begin = m.vertex_triangle_offsets()[vertex];
+  const int end = m.vertex_triangle_offsets()[vertex + 1];
+  if (begin == end) return area;
+  double facing = 0.0;
+  for (int i = begin; i < end; ++i) {
+    const int f = m.vertex_triangles()[i];
+    Eigen::Vector3d a = positions.row(m.surface()(f, 0));
+    Eigen::Vector3d b = positions.row(m.surface()(f, 1));
+    Eigen::Vector3d c = positions.row(m.surface()(f, 2));
+    // (twice the triangle's area along its outward normal)
+    facing += std::max(0.0, -(b - a).cross(c - a).dot(direction));
+  }
+  return std::max(facing / 6.0, kMinFacingShare * area);
+}
+
+double ContactAreaOf(ContactArea rule, const TetMesh& mesh, const Positions& positions, int vertex,
+                     const Eigen::Vector3d& direction, double area) {
+  return rule == ContactArea::kFacing ? FacingContactArea(mesh, positions, vertex, direction, area)
+                                      : area;
+}
+
 std::shared_ptr<const FemModel> FemModel::Build(std::shared_ptr<const TetMesh> mesh,
                                                 const Material& material, const char* where) {
   material.Validate(where);

@@ -31,6 +31,33 @@ Eigen::VectorXd ComputeContactAreas(const TetMesh& mesh);
 // (see World's contacts).
 double MeanSurfaceVertexArea(const TetMesh& mesh, const Eigen::VectorXd& contact_areas);
 
+// What area a vertex stands for in a contact (<contact area>).
+enum class ContactArea {
+  kWhole,   // its share of the surface (ComputeContactAreas), as is
+  kFacing,  // the part of that share that faces the contact (FacingContactArea)
+};
+
+// The part of a vertex's contact area (`area`, ComputeContactAreas) that
+// faces the way the vertex is pushed, at `positions`: a third of each
+// incident surface triangle's area times the cosine between its inward
+// normal and `direction` (unit, the way out of what the vertex is in),
+// where that is positive. A pressure p pushes a surface along `direction`
+// with p times the area it shows that way, so that contact stiffnesses of
+// kappa times this area press a flat contact to the depth p / kappa at
+// every vertex, edges and corners too. With the whole share (kWhole), a
+// block's edge and corner vertices count their side faces' area too (a
+// block of 4 cells a side under a rigid plate: its top corners 0.074 mm
+// deep, its middle 0.185 mm, where the pressure gives 0.194). At least
+// kMinFacingShare of `area`, so that a vertex pushed along its own surface
+// (a deep penetration's direction) still resists; an interior vertex
+// stands for `area`.
+inline constexpr double kMinFacingShare = 0.1;
+double FacingContactArea(const TetMesh& mesh, const Positions& positions, int vertex,
+                         const Eigen::Vector3d& direction, double area);
+// `area` by `rule`: as is, or FacingContactArea.
+double ContactAreaOf(ContactArea rule, const TetMesh& mesh, const Positions& positions, int vertex,
+                     const Eigen::Vector3d& direction, double area);
+
 class FemModel {
  public:
   // Throws Error if the material is invalid (`where` names the body).

@@ -227,7 +227,7 @@ class SceneParser {
           scene.attachments.push_back(Attach(child));
         } else if (kind == "contact") {
           CheckAttributes(child, {"method", "stiffness", "damping", "friction", "slip", "stick",
-                                  "stickstiffness", "autoproxy"});
+                                  "stickstiffness", "autoproxy", "area"});
           scene.method = Either(child, "method", "consistent", "closest",
                                 scene.method == DepthMethod::kConsistent)
                              ? DepthMethod::kConsistent
@@ -243,6 +243,10 @@ class SceneParser {
           // stiffer holds within a thousandth of it)
           scene.stick_stiffness = Number(child, "stickstiffness", 1e-3, 1e3);
           scene.auto_proxies = Bool(child, "autoproxy", true);
+          scene.contact_area =
+              Either(child, "area", "whole", "facing", scene.contact_area == ContactArea::kWhole)
+                  ? ContactArea::kWhole
+                  : ContactArea::kFacing;
         } else if (kind == "solver") {
           CheckAttributes(child,
                           {"substeps", "linear", "tolerance", "maxiter", "rigid", "constraints"});

@@ -11,6 +11,7 @@
 
 #include "collision/penetration.h"
 #include "deformable/deformable_body.h"
+#include "deformable/fem_model.h"
 #include "deformable/material.h"
 
 namespace tetcosim {
@@ -91,6 +92,8 @@ struct SceneSpec {
   // a geom narrower than the gaps between a deformable's surface vertices
   // gets a generated <rigidtet> (World::made_proxies)
   bool auto_proxies = true;
+  // what area a vertex stands for in a contact (ContactAreaOf)
+  ContactArea contact_area = ContactArea::kWhole;
   SolverSpec solver;
   std::vector<TetBodySpec> tetbodies;
   std::vector<RigidTetSpec> rigidtets;

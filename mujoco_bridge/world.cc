@@ -585,6 +585,7 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
   if (scene.slip) world->contact_settings_.slip_velocity = *scene.slip;
   world->contact_settings_.stick = scene.stick;
   if (scene.stick_stiffness) world->contact_settings_.stick_stiffness = *scene.stick_stiffness;
+  world->contact_area_ = scene.contact_area;
   std::string skins;
   const double available_memory = options.memory_limit.value_or(AvailableMemory());
   double needed_memory = 0.0;
@@ -1851,7 +1852,9 @@ void World::AddGeomContacts(double dt) {
     contact.mass_b = body > 0 ? m->body_mass[body] : 0.0;
     contact.depth = depth;
     contact.direction = direction;
-    contact.stiffness = kappa_[i] * deformable.model().contact_areas()[v];
+    contact.stiffness =
+        kappa_[i] * ContactAreaOf(contact_area_, deformable.model().mesh(), deformable.positions(),
+                                  v, direction, deformable.model().contact_areas()[v]);
     contact.friction = std::max(friction_[i], m->geom_friction[3 * g]);  // MuJoCo combines by max
     contact.damping_ratio = damping_[i];
     contacts_.push_back(contact);
@@ -2006,7 +2009,9 @@ void World::CollectContacts(double dt) {
     if (r.object < num_deformables) {
       contact.body_a = r.object;
       contact.vertex_a = r.vertex;
-      area = bodies_[r.object]->model().contact_areas()[r.vertex];
+      const DeformableBody& body = *bodies_[r.object];
+      area = ContactAreaOf(contact_area_, body.model().mesh(), body.positions(), r.vertex,
+                           r.direction, body.model().contact_areas()[r.vertex]);
       // (the softer body's, between two deformables: the one that gives)
       kappa = r.penetrated < num_deformables ? std::min(kappa_[r.object], kappa_[r.penetrated])
                                              : kappa_[r.object];
@@ -2020,7 +2025,8 @@ void World::CollectContacts(double dt) {
       contact.velocity_a = motion.velocity;
       contact.arc = motion.arc;
       contact.mass_a = model_->body_mass[proxy.body];
-      area = proxy.areas[r.vertex];
+      area = ContactAreaOf(contact_area_, *proxy.mesh, proxy.positions, r.vertex, r.direction,
+                           proxy.areas[r.vertex]);
       kappa = kappa_[r.penetrated];
       contact.friction = std::max(friction_[r.penetrated], proxy.friction);
       contact.damping_ratio = damping_[r.penetrated];

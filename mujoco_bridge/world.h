@@ -455,6 +455,7 @@ class World {
   std::function<void(World&)> controller_;
   StepSettings step_settings_;
   ContactSettings contact_settings_;
+  ContactArea contact_area_ = ContactArea::kWhole;  // <contact area>
   StepMetrics metrics_;
   long steps_ = 0;
   std::string failure_;  // kFailed's message, once MuJoCo failed a step

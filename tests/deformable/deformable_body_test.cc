@@ -360,11 +360,112 @@ TEST(DeformableBody, RestingDepthIsAboutTheSameAtTwoResolutions) {
             2.0);
 }
 
+// A cube pressed onto a frictionless plane by a pressure p on its top
+// face (no gravity: a uniaxial stress p throughout, which linear
+// tetrahedra hold exactly) presses every vertex of its base to the depth
+// p A / (kappa A'), A' the base's area as the Poisson bulge widens it: at
+// any resolution, at the base's edges and corners as in its middle. So each
+// vertex's contact stiffness must be kappa times the area it shows the
+// plane (ContactArea::kFacing, FacingContactArea); with its whole share of
+// the surface (kWhole, the default), the base's edge and corner vertices
+// count their side faces' area too, and the depths range from 0.36 to 0.93
+// of p A / (kappa A') at resolution 3, 0.39 to 0.98 at 6 (measured; with
+// kFacing, 1 to 1e-7). (Under its own weight
+// the base is not pressed evenly: the uniaxial solution's cross sections
+// bow by nu rho g r^2 / (2 E), 7e-5 m here, as much as the depth.)
+TEST(DeformableBody, APressedCubesBaseSinksByThePressureOverKappaAtAnyResolution) {
+  constexpr double kPressure = 1000;  // Pa
+  for (const int resolution : {3, 6}) {
+    SCOPED_TRACE(::testing::Message() << "resolution " << resolution);
+    auto model =
+        Model("box:size=0.05:res=" + std::to_string(resolution), Material{1e5, 0.3, 1000, 2, 0});
+    DeformableBody body(model, "cube");
+    body.Reset(At({0, 0, 0.05}));
+    const TetMesh& mesh = model->mesh();
+    const Positions& X = body.positions();
+    for (Eigen::Index f = 0; f < mesh.surface().rows(); ++f) {
+      const Eigen::Vector3d a = X.row(mesh.surface()(f, 0)).transpose();
+      const Eigen::Vector3d b = X.row(mesh.surface()(f, 1)).transpose();
+      const Eigen::Vector3d c = X.row(mesh.surface()(f, 2)).transpose();
+      if (std::min({a.z(), b.z(), c.z()}) < 0.1 - 1e-9) continue;  // the top face's
+      const double area = 0.5 * (b - a).cross(c - a).norm();
+      for (int k = 0; k < 3; ++k) {
+        body.applied_forces()(mesh.surface()(f, k), 2) -= kPressure * area / 3;
+      }
+    }
+    StepSettings settings;
+    settings.dt = 2e-3;
+    settings.gravity.setZero();
+    const double kappa = DefaultContactPressureStiffness(*model);
+    DeformableBody* bodies[1] = {&body};
+    for (int s = 0; s < 1000; ++s) {
+      std::vector<ContactPoint> contacts;
+      AddHalfSpaceContacts(0, body, Eigen::Vector3d::UnitZ(), 0.0, kappa, 0.0, contacts,
+                           ContactArea::kFacing);
+      ASSERT_EQ(StepCoupled(bodies, contacts, ContactSettings{}, settings).status, StepStatus::kOk);
+    }
+    ASSERT_LT(body.KineticEnergy(), 1e-12) << "J";
+    const Positions& x = body.positions();
+    std::vector<double> depths;
+    Eigen::Vector2d low = Eigen::Vector2d::Constant(1.0), high = -low;
+    for (Eigen::Index v = 0; v < x.rows(); ++v) {
+      if (x(v, 2) > 0.005) continue;  // (the next layer is 1.6 cm up or more)
+      depths.push_back(-x(v, 2));
+      low = low.cwiseMin(x.row(v).head<2>().transpose());
+      high = high.cwiseMax(x.row(v).head<2>().transpose());
+    }
+    ASSERT_EQ(depths.size(), static_cast<size_t>((resolution + 1) * (resolution + 1)));
+    const double expected = kPressure * 0.01 / (kappa * (high - low).prod());
+    const auto [lowest, highest] = std::minmax_element(depths.begin(), depths.end());
+    std::printf("resolution %d: depths %.7f to %.7f of %.4g m\n", resolution, *lowest / expected,
+                *highest / expected, expected);
+    EXPECT_NEAR(*lowest, expected, 1e-5 * expected);
+    EXPECT_NEAR(*highest, expected, 1e-5 * expected);
+  }
+}
+
 // A box of 3 x 3 x 3 cells, 10 cm a side: 0.06 m^2 of surface over its
 // 4^3 - 2^3 surface vertices.
 TEST(FemModel, MeanSurfaceVertexAreaOfABox) {
   const TetMesh mesh = TetMesh::Build(MakeShape("box:size=0.05:res=3"));
   EXPECT_NEAR(MeanSurfaceVertexArea(mesh, ComputeContactAreas(mesh)), 0.06 / 56.0, 1e-15);
+}
+
+// The area a vertex of a box shows a contact pressing its top face, the box
+// turned any way: each top vertex's share of the top face alone (brute
+// force over the top face's triangles), so the top's vertices add up to
+// its area, 0.01 m^2 (their whole shares: 0.0167), a vertex off the
+// top face shows nothing but keeps kMinFacingShare of its whole share; and
+// with ContactArea::kWhole, each vertex's whole share.
+TEST(FemModel, AVertexShowsAContactOnlyTheAreaThatFacesIt) {
+  const TetMesh mesh = TetMesh::Build(MakeShape("box:size=0.05:res=3"));
+  const Eigen::VectorXd areas = ComputeContactAreas(mesh);
+  const Eigen::Matrix3d turn =
+      Eigen::AngleAxisd(0.7, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
+  const Positions x = mesh.positions() * turn.transpose();
+  const Eigen::Vector3d out_of_the_top = -(turn * Eigen::Vector3d::UnitZ());
+  Eigen::VectorXd top_share = Eigen::VectorXd::Zero(mesh.num_vertices());
+  for (Eigen::Index f = 0; f < mesh.surface().rows(); ++f) {
+    const auto corner = [&](int k) { return mesh.positions().row(mesh.surface()(f, k)); };
+    if (std::min({corner(0).z(), corner(1).z(), corner(2).z()}) < 0.05 - 1e-12) continue;
+    const double area = 0.5 * (corner(1) - corner(0)).cross(corner(2) - corner(0)).norm();
+    for (int k = 0; k < 3; ++k) top_share[mesh.surface()(f, k)] += area / 3;
+  }
+  double top_total = 0.0, whole_total = 0.0;
+  for (int v : mesh.surface_vertices()) {
+    const double facing = FacingContactArea(mesh, x, v, out_of_the_top, areas[v]);
+    if (top_share[v] > 0.0) {
+      EXPECT_NEAR(facing, top_share[v], 1e-15) << "vertex " << v;
+      top_total += facing;
+      whole_total += areas[v];
+    } else {
+      EXPECT_NEAR(facing, kMinFacingShare * areas[v], 1e-18) << "vertex " << v;
+    }
+    EXPECT_EQ(ContactAreaOf(ContactArea::kWhole, mesh, x, v, out_of_the_top, areas[v]), areas[v]);
+  }
+  EXPECT_NEAR(top_total, 0.01, 1e-15);
+  // (the top's rim vertices' whole shares take in the sides' top rows)
+  EXPECT_NEAR(whole_total, 0.01 + 4 * 0.1 * (0.1 / 3) / 2, 1e-15);
 }
 
 // A penalty contact pushes and never pulls. A cube pressed into the
