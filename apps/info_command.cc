@@ -31,6 +31,8 @@ void RunSceneInfo(const InfoOptions& options) {
   out["scene"] = options.file;
   out["timestep"] = world->timestep();
   out["method"] = DepthMethodName(scene.method);
+  const char* area = world->contact_area() == ContactArea::kFacing ? "facing" : "whole";
+  out["contact_area"] = area;
   out["rigid_bodies"] = world->num_rigid_bodies() - 1;
   out["proxies"] = world->num_proxies();
   out["warnings"] = world->load_warnings();
@@ -52,6 +54,7 @@ void RunSceneInfo(const InfoOptions& options) {
                                   {"tetrahedra", body.mesh().num_tets()},
                                   {"mass", body.model().total_mass()},
                                   {"young", body.model().material().young},
+                                  {"contact_stiffness", world->contact_pressure_stiffness(i)},
                                   {"pinned", body.pinned_vertices().size()}});
   }
   if (options.json) {
@@ -59,7 +62,8 @@ void RunSceneInfo(const InfoOptions& options) {
     return;
   }
   std::printf("scene        %s\n", options.file.c_str());
-  std::printf("timestep     %g s, method %s\n", world->timestep(), DepthMethodName(scene.method));
+  std::printf("timestep     %g s, method %s, contact area %s\n", world->timestep(),
+              DepthMethodName(scene.method), area);
   std::printf("MuJoCo       %d bodies, %d with tetrahedral proxies\n",
               world->num_rigid_bodies() - 1, world->num_proxies());
   for (const World::GeomSummary& geom : geoms) {
@@ -70,10 +74,12 @@ void RunSceneInfo(const InfoOptions& options) {
   }
   for (int i = 0; i < world->num_deformables(); ++i) {
     const DeformableBody& body = world->deformable(i);
-    std::printf("tetbody      %s: %d vertices, %d tetrahedra, %.4g kg, E = %g Pa, %zu pinned\n",
-                body.name().c_str(), body.num_vertices(), body.mesh().num_tets(),
-                body.model().total_mass(), body.model().material().young,
-                body.pinned_vertices().size());
+    std::printf(
+        "tetbody      %s: %d vertices, %d tetrahedra, %.4g kg, E = %g Pa, contact stiffness %.4g "
+        "Pa/m, %zu pinned\n",
+        body.name().c_str(), body.num_vertices(), body.mesh().num_tets(), body.model().total_mass(),
+        body.model().material().young, world->contact_pressure_stiffness(i),
+        body.pinned_vertices().size());
   }
 }
 

@@ -177,6 +177,11 @@ class World {
   DeformableBody& deformable(int i) { return *bodies_[i]; }
   const DeformableBody& deformable(int i) const { return *bodies_[i]; }
   int DeformableIndex(const std::string& name) const;
+  // A deformable's contact stiffness per area and depth, kappa (Pa/m): its
+  // `stiffness`, the scene's, or the automatic 10 E / L.
+  double contact_pressure_stiffness(int i) const { return kappa_[i]; }
+  // What area a vertex stands for in a contact (<contact area>).
+  ContactArea contact_area() const { return contact_area_; }
   const std::vector<ContactPoint>& contacts() const { return contacts_; }
   // The penetration results of the last step (its start state); they are the
   // first penetrations().size() entries of contacts(), in the same order;

@@ -2639,6 +2639,33 @@ TEST(Commands, ProxiesMadeForNarrowGeomsAreListed) {
   }
 }
 
+// `info` tells each tetbody's contact stiffness per area and depth: the
+// automatic kappa = 10 E / L (L the cube root of its volume), or its own
+// `stiffness`; and what area a vertex stands for (<contact area>).
+TEST(Commands, InfoTellsEachBodysContactStiffnessAndTheAreaRule) {
+  TempDir dir;
+  const std::string scene = dir.Write("two.xml", R"(<mujoco>
+  <deformable>
+    <contact area="facing"/>
+    <tetbody name="auto" shape="box" size="0.05 0.1 0.2" young="2e5" resolution="2"/>
+    <tetbody name="own" shape="sphere" size="0.1" pos="1 0 0" stiffness="3e6"/>
+  </deformable>
+</mujoco>)");
+  const std::string info = std::string(TETCOSIM_BINARY) + " info ";
+  const auto [status, json_text] = RunShell(info + "--json " + scene);
+  ASSERT_EQ(status, 0) << json_text;
+  const nlohmann::json out = nlohmann::json::parse(json_text);
+  EXPECT_EQ(out["contact_area"], "facing");
+  const double automatic = 10 * 2e5 / std::cbrt(0.1 * 0.2 * 0.4);
+  EXPECT_NEAR(out["deformables"][0]["contact_stiffness"].get<double>(), automatic,
+              1e-12 * automatic);
+  EXPECT_EQ(out["deformables"][1]["contact_stiffness"].get<double>(), 3e6);
+  const auto [text_status, text] = RunShell(info + scene);
+  ASSERT_EQ(text_status, 0) << text;
+  EXPECT_NE(text.find("method consistent, contact area facing"), std::string::npos) << text;
+  EXPECT_NE(text.find("E = 100000 Pa, contact stiffness 3e+06 Pa/m"), std::string::npos) << text;
+}
+
 }  // namespace
 }  // namespace tetcosim
 
