@@ -470,6 +470,100 @@ TEST(Coupling, ARigidPlateCompressesASoftBlockUniformlyAsSigmaOverESays) {
   }
 }
 
+// Every path a contact takes honours <contact area="facing">: a soft block
+// whose base is in the floor (a geom), a soft lid pressed into its top
+// (deformable in deformable, both ways) and a fixed box's proxy pressed
+// into its side (deformable in proxy, proxy in deformable). Each contact's
+// stiffness is kappa times the area its vertex shows the contact, summed by
+// brute force over its object's surface triangles at the step's start, and
+// bounded by the penetrated mesh's surface area per vertex (World's
+// contacts); kappa the softer deformable's, or the deformable's against a
+// proxy or a geom.
+TEST(Coupling, EveryContactsStiffnessIsKappaTimesTheAreaItsVertexShowsTheContact) {
+  TempDir dir;
+  const std::string path = dir.Write("paths.xml", R"(<mujoco>
+  <option gravity="0 0 0"/>
+  <worldbody>
+    <geom name="floor" type="plane" size="1 1 0.1"/>
+    <body name="wall" pos="0.078 0.01 0.05"><geom name="wall" type="box" size="0.03 0.03 0.03"/></body>
+  </worldbody>
+  <deformable>
+    <contact area="facing"/>
+    <rigidtet body="wall" geom="wall" resolution="3"/>
+    <tetbody name="block" shape="box" size="0.05 0.05 0.05" pos="0 0 0.048" resolution="3"/>
+    <tetbody name="lid" shape="box" size="0.03 0.03 0.03" pos="0.01 -0.005 0.126" resolution="2"
+             young="1e6" euler="0 0 10"/>
+  </deformable>
+</mujoco>)");
+  std::unique_ptr<World> world = World::Load(path);
+  // the positions the step's contacts are collected at
+  std::vector<Positions> start;
+  start.reserve(world->num_deformables());
+  for (int i = 0; i < world->num_deformables(); ++i) {
+    start.push_back(world->deformable(i).positions());
+  }
+  world->Step();
+  ASSERT_EQ(world->metrics().status, StepStatus::kOk) << world->metrics().message;
+  const auto facing_area = [](const TetMesh& mesh, const Positions& x, int vertex,
+                              const Eigen::Vector3d& direction) {
+    const Eigen::VectorXd whole = ComputeContactAreas(mesh);
+    double facing = 0.0;
+    for (Eigen::Index f = 0; f < mesh.surface().rows(); ++f) {
+      const Eigen::RowVector3i corners = mesh.surface().row(f);
+      if ((corners.array() != vertex).all()) continue;
+      const Eigen::Vector3d a = x.row(corners[0]).transpose();
+      const Eigen::Vector3d b = x.row(corners[1]).transpose();
+      const Eigen::Vector3d c = x.row(corners[2]).transpose();
+      const Eigen::Vector3d inward = -0.5 * (b - a).cross(c - a);  // times the area
+      facing += std::max(0.0, inward.dot(direction)) / 3;
+    }
+    return std::max(facing, kMinFacingShare * whole[vertex]);
+  };
+  const std::vector<CollisionObject>& objects = world->collision_objects();
+  const int deformables = world->num_deformables();
+  const auto positions = [&](int object) -> const Positions& {
+    return object < deformables ? start[object] : *objects[object].positions;
+  };
+  const auto area_per_vertex = [&](int object) {
+    const TetMesh& mesh = *objects[object].mesh;
+    return MeanSurfaceVertexArea(mesh, ComputeContactAreas(mesh));
+  };
+  std::set<std::pair<bool, bool>> kinds;  // (A deformable, B deformable)
+  int smaller_than_whole = 0;
+  const std::vector<PenetrationResult>& results = world->penetrations();
+  for (size_t i = 0; i < results.size(); ++i) {
+    const PenetrationResult& r = results[i];
+    const bool a_deformable = r.object < deformables, b_deformable = r.penetrated < deformables;
+    kinds.insert({a_deformable, b_deformable});
+    const double kappa =
+        a_deformable ? (b_deformable ? std::min(world->contact_pressure_stiffness(r.object),
+                                                world->contact_pressure_stiffness(r.penetrated))
+                                     : world->contact_pressure_stiffness(r.object))
+                     : world->contact_pressure_stiffness(r.penetrated);
+    const TetMesh& mesh = *objects[r.object].mesh;
+    const double area = facing_area(mesh, positions(r.object), r.vertex, r.direction);
+    const double expected = kappa * std::min(area, area_per_vertex(r.penetrated));
+    EXPECT_NEAR(world->contacts()[i].stiffness, expected, 1e-12 * expected)
+        << "object " << r.object << " vertex " << r.vertex << " in object " << r.penetrated;
+    smaller_than_whole += area < 0.9 * ComputeContactAreas(mesh)[r.vertex];
+  }
+  const std::set<std::pair<bool, bool>> all_kinds = {{true, true}, {true, false}, {false, true}};
+  EXPECT_EQ(kinds, all_kinds);
+  int in_the_floor = 0;
+  for (size_t i = results.size(); i < world->contacts().size(); ++i) {
+    const ContactPoint& contact = world->contacts()[i];
+    ASSERT_EQ(contact.body_a, 0) << "only the block is in the floor";
+    const double expected =
+        world->contact_pressure_stiffness(0) *
+        facing_area(world->deformable(0).mesh(), start[0], contact.vertex_a, contact.direction);
+    EXPECT_NEAR(contact.stiffness, expected, 1e-12 * expected) << "vertex " << contact.vertex_a;
+    ++in_the_floor;
+  }
+  EXPECT_EQ(in_the_floor, 16) << "the block's base";
+  EXPECT_GT(smaller_than_whole, 0)
+      << "edge or corner vertices whose whole share the side faces add to";
+}
+
 // The same cube at 10 and 20 ms. The floor holds the box up through
 // MuJoCo's contacts, which the step linearizes about their active set
 // (<solver constraints="linearized">, the default): the step's prediction
