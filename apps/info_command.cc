@@ -31,7 +31,7 @@ void RunSceneInfo(const InfoOptions& options) {
   out["scene"] = options.file;
   out["timestep"] = world->timestep();
   out["method"] = DepthMethodName(scene.method);
-  const char* area = world->contact_area() == ContactArea::kFacing ? "facing" : "whole";
+  const char* area = ContactAreaName(world->contact_area());
   out["contact_area"] = area;
   out["rigid_bodies"] = world->num_rigid_bodies() - 1;
   out["proxies"] = world->num_proxies();

@@ -59,6 +59,10 @@ double FacingContactArea(const TetMesh& m, const Positions& positions, int verte
   return std::max(facing / 6.0, kMinFacingShare * area);
 }
 
+const char* ContactAreaName(ContactArea area) {
+  return area == ContactArea::kFacing ? "facing" : "whole";
+}
+
 double ContactAreaOf(ContactArea rule, const TetMesh& mesh, const Positions& positions, int vertex,
                      const Eigen::Vector3d& direction, double area) {
   return rule == ContactArea::kFacing ? FacingContactArea(mesh, positions, vertex, direction, area)

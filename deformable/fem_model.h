@@ -36,6 +36,7 @@ enum class ContactArea {
   kWhole,   // its share of the surface (ComputeContactAreas), as is
   kFacing,  // the part of that share that faces the contact (FacingContactArea)
 };
+const char* ContactAreaName(ContactArea area);  // as <contact area> spells it
 
 // The part of a vertex's contact area (`area`, ComputeContactAreas) that
 // faces the way the vertex is pushed, at `positions`: a third of each

@@ -34,6 +34,26 @@ Eigen::Isometry3d At(const Eigen::Vector3d& p) {
   return X;
 }
 
+// A uniform traction (Pa, a vector) on the surface triangles whose corners
+// all lie on a face (on_face(corner), at positions X), added to the body's
+// applied forces as nodal forces: a third of the traction times each such
+// triangle's area to each of its corners.
+template <typename OnFace>
+void ApplyTraction(DeformableBody& body, const Positions& X, const OnFace& on_face,
+                   const Eigen::Vector3d& traction) {
+  const Triangles& surface = body.mesh().surface();
+  for (Eigen::Index f = 0; f < surface.rows(); ++f) {
+    const Eigen::Vector3d a = X.row(surface(f, 0)).transpose();
+    const Eigen::Vector3d b = X.row(surface(f, 1)).transpose();
+    const Eigen::Vector3d c = X.row(surface(f, 2)).transpose();
+    if (!on_face(a) || !on_face(b) || !on_face(c)) continue;
+    const double area = 0.5 * (b - a).cross(c - a).norm();
+    for (int k = 0; k < 3; ++k) {
+      body.applied_forces().row(surface(f, k)) += (traction * area / 3).transpose();
+    }
+  }
+}
+
 TEST(DeformableBody, FreeFallMatchesGravityAtSeveralTimeSteps) {
   auto model = Model("box:size=0.05:res=3", Material{1e5, 0.3, 1000, 0, 0});
   for (double dt : {0.5e-3, 1e-3, 2e-3, 5e-3, 10e-3}) {
@@ -267,23 +287,11 @@ TEST(DeformableBody, ABarPulledAtItsEndsStretchesBySigmaOverEAndThinsByNu) {
   for (const double nu : {0.0, 0.3, 0.45}) {
     auto model = Model("box:size=0.1,0.02,0.03:res=10,2,3", Material{E, nu, 1000, 20.0, 0.0});
     DeformableBody body(model, "bar");
-    // the ends' traction as nodal forces: a third of sigma times the area of
-    // each surface triangle on an end to each of its corners
     const Positions& X = model->mesh().positions();
-    const Triangles& surface = model->mesh().surface();
-    for (Eigen::Index f = 0; f < surface.rows(); ++f) {
-      for (const double end : {-1.0, 1.0}) {
-        bool on_end = true;
-        for (int k = 0; k < 3; ++k) on_end &= X(surface(f, k), 0) == end * length;
-        if (!on_end) continue;
-        const Eigen::Vector3d a = X.row(surface(f, 0)).transpose();
-        const Eigen::Vector3d b = X.row(surface(f, 1)).transpose();
-        const Eigen::Vector3d c = X.row(surface(f, 2)).transpose();
-        const double area = 0.5 * (b - a).cross(c - a).norm();
-        for (int k = 0; k < 3; ++k) {
-          body.applied_forces()(surface(f, k), 0) += end * sigma * area / 3;
-        }
-      }
+    for (const double end : {-1.0, 1.0}) {
+      ApplyTraction(
+          body, X, [&](const Eigen::Vector3d& x) { return x.x() == end * length; },
+          Eigen::Vector3d(end * sigma, 0.0, 0.0));
     }
     StepSettings settings;
     settings.dt = 0.1;
@@ -381,18 +389,9 @@ TEST(DeformableBody, APressedCubesBaseSinksByThePressureOverKappaAtAnyResolution
         Model("box:size=0.05:res=" + std::to_string(resolution), Material{1e5, 0.3, 1000, 2, 0});
     DeformableBody body(model, "cube");
     body.Reset(At({0, 0, 0.05}));
-    const TetMesh& mesh = model->mesh();
-    const Positions& X = body.positions();
-    for (Eigen::Index f = 0; f < mesh.surface().rows(); ++f) {
-      const Eigen::Vector3d a = X.row(mesh.surface()(f, 0)).transpose();
-      const Eigen::Vector3d b = X.row(mesh.surface()(f, 1)).transpose();
-      const Eigen::Vector3d c = X.row(mesh.surface()(f, 2)).transpose();
-      if (std::min({a.z(), b.z(), c.z()}) < 0.1 - 1e-9) continue;  // the top face's
-      const double area = 0.5 * (b - a).cross(c - a).norm();
-      for (int k = 0; k < 3; ++k) {
-        body.applied_forces()(mesh.surface()(f, k), 2) -= kPressure * area / 3;
-      }
-    }
+    ApplyTraction(
+        body, body.positions(), [](const Eigen::Vector3d& x) { return x.z() >= 0.1 - 1e-9; },
+        Eigen::Vector3d(0.0, 0.0, -kPressure));  // on the top face
     StepSettings settings;
     settings.dt = 2e-3;
     settings.gravity.setZero();

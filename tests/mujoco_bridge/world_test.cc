@@ -504,9 +504,20 @@ TEST(Coupling, EveryContactsStiffnessIsKappaTimesTheAreaItsVertexShowsTheContact
   }
   world->Step();
   ASSERT_EQ(world->metrics().status, StepStatus::kOk) << world->metrics().message;
-  const auto facing_area = [](const TetMesh& mesh, const Positions& x, int vertex,
-                              const Eigen::Vector3d& direction) {
-    const Eigen::VectorXd whole = ComputeContactAreas(mesh);
+  const std::vector<CollisionObject>& objects = world->collision_objects();
+  const int deformables = world->num_deformables();
+  const auto positions = [&](int object) -> const Positions& {
+    return object < deformables ? start[object] : *objects[object].positions;
+  };
+  std::vector<Eigen::VectorXd> whole;  // each object's vertices' whole shares
+  std::vector<double> area_per_vertex;
+  for (const CollisionObject& object : objects) {
+    whole.push_back(ComputeContactAreas(*object.mesh));
+    area_per_vertex.push_back(MeanSurfaceVertexArea(*object.mesh, whole.back()));
+  }
+  const auto facing_area = [&](int object, int vertex, const Eigen::Vector3d& direction) {
+    const TetMesh& mesh = *objects[object].mesh;
+    const Positions& x = positions(object);
     double facing = 0.0;
     for (Eigen::Index f = 0; f < mesh.surface().rows(); ++f) {
       const Eigen::RowVector3i corners = mesh.surface().row(f);
@@ -517,16 +528,7 @@ TEST(Coupling, EveryContactsStiffnessIsKappaTimesTheAreaItsVertexShowsTheContact
       const Eigen::Vector3d inward = -0.5 * (b - a).cross(c - a);  // times the area
       facing += std::max(0.0, inward.dot(direction)) / 3;
     }
-    return std::max(facing, kMinFacingShare * whole[vertex]);
-  };
-  const std::vector<CollisionObject>& objects = world->collision_objects();
-  const int deformables = world->num_deformables();
-  const auto positions = [&](int object) -> const Positions& {
-    return object < deformables ? start[object] : *objects[object].positions;
-  };
-  const auto area_per_vertex = [&](int object) {
-    const TetMesh& mesh = *objects[object].mesh;
-    return MeanSurfaceVertexArea(mesh, ComputeContactAreas(mesh));
+    return std::max(facing, kMinFacingShare * whole[object][vertex]);
   };
   std::set<std::pair<bool, bool>> kinds;  // (A deformable, B deformable)
   int smaller_than_whole = 0;
@@ -540,12 +542,11 @@ TEST(Coupling, EveryContactsStiffnessIsKappaTimesTheAreaItsVertexShowsTheContact
                                                 world->contact_pressure_stiffness(r.penetrated))
                                      : world->contact_pressure_stiffness(r.object))
                      : world->contact_pressure_stiffness(r.penetrated);
-    const TetMesh& mesh = *objects[r.object].mesh;
-    const double area = facing_area(mesh, positions(r.object), r.vertex, r.direction);
-    const double expected = kappa * std::min(area, area_per_vertex(r.penetrated));
+    const double area = facing_area(r.object, r.vertex, r.direction);
+    const double expected = kappa * std::min(area, area_per_vertex[r.penetrated]);
     EXPECT_NEAR(world->contacts()[i].stiffness, expected, 1e-12 * expected)
         << "object " << r.object << " vertex " << r.vertex << " in object " << r.penetrated;
-    smaller_than_whole += area < 0.9 * ComputeContactAreas(mesh)[r.vertex];
+    smaller_than_whole += area < 0.9 * whole[r.object][r.vertex];
   }
   const std::set<std::pair<bool, bool>> all_kinds = {{true, true}, {true, false}, {false, true}};
   EXPECT_EQ(kinds, all_kinds);
@@ -554,8 +555,7 @@ TEST(Coupling, EveryContactsStiffnessIsKappaTimesTheAreaItsVertexShowsTheContact
     const ContactPoint& contact = world->contacts()[i];
     ASSERT_EQ(contact.body_a, 0) << "only the block is in the floor";
     const double expected =
-        world->contact_pressure_stiffness(0) *
-        facing_area(world->deformable(0).mesh(), start[0], contact.vertex_a, contact.direction);
+        world->contact_pressure_stiffness(0) * facing_area(0, contact.vertex_a, contact.direction);
     EXPECT_NEAR(contact.stiffness, expected, 1e-12 * expected) << "vertex " << contact.vertex_a;
     ++in_the_floor;
   }
