@@ -1287,8 +1287,7 @@ void World::FindOtherForces() {
 }
 
 bool World::LinearizedConstraints() const {
-  return scene_.solver.implicit_rigid && scene_.solver.linearize_constraints &&
-         model_->opt.solver != mjSOL_PGS;
+  return scene_.solver.implicit_rigid && scene_.solver.linearize_constraints;
 }
 
 int World::ConstraintRows(int row) const {
