@@ -31,7 +31,7 @@ struct Coupling {
   Eigen::Vector3d Jv_start = Eigen::Vector3d::Zero();  // J v at the start of the step
   bool active = true;                                  // false: released (its force would pull)
   bool taken_back = false;  // released, then active again: kept from then on
-  Eigen::Vector3d Jv(const Eigen::VectorXd& v) const {
+  Eigen::Vector3d Jv(const VectorXdWithRoom& v) const {
     Eigen::Vector3d u = Eigen::Vector3d::Zero();
     if (dof_a >= 0) u += v.segment<3>(dof_a);
     for (int i = 0; i < 4; ++i) {
@@ -42,7 +42,7 @@ struct Coupling {
     }
     return u;
   }
-  void AddJt(const Eigen::Vector3d& g, Eigen::VectorXd& y) const {
+  void AddJt(const Eigen::Vector3d& g, VectorXdWithRoom& y) const {
     if (dof_a >= 0) y.segment<3>(dof_a) += g;
     for (int i = 0; i < 4; ++i) {
       if (dof_b[i] >= 0) y.segment<3>(dof_b[i]) -= w[i] * g;
@@ -66,7 +66,7 @@ struct Slave {
 
 // the vectors ConjugateGradients works in
 struct CgVectors {
-  Eigen::VectorXd z, p, q;
+  VectorXdWithRoom z, p, q;
 };
 
 // Filtered, preconditioned conjugate gradients on A x = b from x (Baraff
@@ -77,13 +77,13 @@ struct CgVectors {
 // already at the start. Returns the iterations.
 template <typename Multiply, typename Precondition, typename Filter>
 int ConjugateGradients(const Multiply& multiply, const Precondition& precondition,
-                       const Filter& filter, const Eigen::VectorXd& b, double threshold,
-                       int max_iterations, Eigen::VectorXd& x, Eigen::VectorXd& Ax,
-                       Eigen::VectorXd& r, CgVectors& vectors, bool Ax_given = false) {
+                       const Filter& filter, const VectorXdWithRoom& b, double threshold,
+                       int max_iterations, VectorXdWithRoom& x, VectorXdWithRoom& Ax,
+                       VectorXdWithRoom& r, CgVectors& vectors, bool Ax_given = false) {
   const Eigen::Index n = b.size();
-  Eigen::VectorXd& z = vectors.z;
-  Eigen::VectorXd& p = vectors.p;
-  Eigen::VectorXd& q = vectors.q;
+  VectorXdWithRoom& z = vectors.z;
+  VectorXdWithRoom& p = vectors.p;
+  VectorXdWithRoom& q = vectors.q;
   z.resize(n);
   p.resize(n);
   q.resize(n);
@@ -117,8 +117,8 @@ int ConjugateGradients(const Multiply& multiply, const Precondition& preconditio
 // work = C x on the vertices in `touched` (zero elsewhere there): the
 // vertex-rigid blocks of the rigid contacts' J^T G J times x's rigid part
 void MultiplyRigidToVertices(const std::vector<const Coupling*>& couplings,
-                             const Eigen::VectorXd& x, const std::vector<int>& touched,
-                             Eigen::VectorXd& work) {
+                             const VectorXdWithRoom& x, const std::vector<int>& touched,
+                             VectorXdWithRoom& work) {
   for (int block : touched) work.segment<3>(3 * block).setZero();
   for (const Coupling* coupling : couplings) {
     const auto& J = *coupling->rigid_jacobian;
@@ -133,7 +133,7 @@ void MultiplyRigidToVertices(const std::vector<const Coupling*>& couplings,
 
 // out = C^T y (the rigid degrees of freedom, from n_deformable on)
 void MultiplyVerticesToRigid(const std::vector<const Coupling*>& couplings,
-                             const Eigen::VectorXd& y, int n_deformable, Eigen::VectorXd& out) {
+                             const VectorXdWithRoom& y, int n_deformable, VectorXdWithRoom& out) {
   out.setZero();
   for (const Coupling* coupling : couplings) {
     Eigen::Vector3d u = Eigen::Vector3d::Zero();
@@ -266,7 +266,7 @@ T& AddReusing(std::vector<T>& items, std::vector<T>& spare, const Reuse& reuse) 
 // (StepCoupled's arrays, named as there)
 struct CoupledStepWorkspace::Arrays {
   std::vector<int> offset, tree_offset;
-  Eigen::VectorXd v, b, delta;
+  VectorXdWithRoom v, b, delta;
   std::vector<Eigen::Matrix3d> blocks, body_blocks;
   std::vector<char> pinned;
   std::vector<ConstraintLaw> laws;
@@ -277,8 +277,8 @@ struct CoupledStepWorkspace::Arrays {
   std::vector<Eigen::Vector3d> contact_rhs, slide;
   std::vector<FrictionLaw> law;
   std::vector<char> switches;
-  Eigen::VectorXd carried, momentum, v_new, work, rigid_part, body_rhs, Av_new, r;
-  Eigen::VectorXd impulse, reduced, unit, column, residual;
+  VectorXdWithRoom carried, momentum, v_new, work, rigid_part, body_rhs, Av_new, r;
+  VectorXdWithRoom impulse, reduced, unit, column, residual;
   std::vector<const Coupling*> rigid_couplings;
   std::vector<int> touched;
   Eigen::LDLT<Eigen::MatrixXd> schur_factor;
@@ -351,15 +351,15 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
 
   // bodies' own systems and current velocities; the 3 x 3 diagonal blocks of
   // the system, per vertex, for a block-Jacobi preconditioner
-  Eigen::VectorXd& v = arrays.v;
-  Eigen::VectorXd& b = arrays.b;
+  VectorXdWithRoom& v = arrays.v;
+  VectorXdWithRoom& b = arrays.b;
   v.resize(n);
   b.resize(n);
   std::vector<Eigen::Matrix3d>& blocks = arrays.blocks;
   blocks.resize(static_cast<size_t>(offset[num_bodies] / 3));
   std::vector<char>& pinned = arrays.pinned;
   pinned.assign(static_cast<size_t>(n), 0);
-  Eigen::VectorXd& delta = arrays.delta;
+  VectorXdWithRoom& delta = arrays.delta;
   delta.setZero(n);
   // a rigid tree: M q+ = M q + impulse + its contacts' and constraints' share
   const size_t num_constraints = rigid != nullptr ? rigid->constraints.size() : 0;
@@ -424,7 +424,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     return rate;
   };
   auto add_constraint_row = [&](const RigidConstraint& constraint, Eigen::Index i, double scale,
-                                Eigen::VectorXd& y) {
+                                VectorXdWithRoom& y) {
     Eigen::Index column = 0;
     for (const int t : constraint.trees) {
       if (t < 0) break;
@@ -521,7 +521,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     }
   }
   // x on the carried pins' DoFs from x's trees: J q, plus the constants
-  auto carry = [&](Eigen::VectorXd& x, bool with_constant) {
+  auto carry = [&](VectorXdWithRoom& x, bool with_constant) {
     for (const Slave& slave : slaves) {
       const auto& J = *slave.jacobian;
       x.segment<3>(slave.dof) = J * x.segment(slave.rigid_offset, J.cols());
@@ -529,7 +529,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     }
   };
   // T^T y: the carried pins' rows of y onto their trees' (and zeroed)
-  auto gather = [&](Eigen::VectorXd& y) {
+  auto gather = [&](VectorXdWithRoom& y) {
     for (const Slave& slave : slaves) {
       const auto& J = *slave.jacobian;
       const Eigen::Vector3d row = y.segment<3>(slave.dof);
@@ -606,7 +606,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   }
 
   // y = A x
-  auto multiply_full = [&](const Eigen::VectorXd& x, Eigen::VectorXd& y) {
+  auto multiply_full = [&](const VectorXdWithRoom& x, VectorXdWithRoom& y) {
     for_each_body(
         [&](int k) { bodies[k]->MultiplySystem(x.data() + offset[k], y.data() + offset[k]); });
     for (int t = 0; t < num_trees; ++t) {
@@ -641,9 +641,9 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     }
   };
   // y = T^T A T x: the system the solve sees (A itself without carried pins)
-  Eigen::VectorXd& carried = arrays.carried;  // (with carried pins only)
+  VectorXdWithRoom& carried = arrays.carried;  // (with carried pins only)
   if (!slaves.empty()) carried.resize(n);
-  auto multiply = [&](const Eigen::VectorXd& x, Eigen::VectorXd& y) {
+  auto multiply = [&](const VectorXdWithRoom& x, VectorXdWithRoom& y) {
     if (slaves.empty()) {
       multiply_full(x, y);
       return;
@@ -653,12 +653,12 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     multiply_full(carried, y);
     gather(y);
   };
-  auto filter = [&](Eigen::VectorXd& x) {
+  auto filter = [&](VectorXdWithRoom& x) {
     for (int i = 0; i < n; ++i) {
       if (pinned[i]) x[i] = 0.0;
     }
   };
-  Eigen::VectorXd& momentum = arrays.momentum;
+  VectorXdWithRoom& momentum = arrays.momentum;
   momentum.resize(n);
   for (int k = 0; k < num_bodies; ++k) {
     bodies[k]->MultiplyMass(v.data() + offset[k], momentum.data() + offset[k]);
@@ -671,11 +671,11 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   filter(momentum);
 
   // the relative velocity v_A - v_B of contact c at v+
-  auto relative_velocity = [&](size_t c, const Eigen::VectorXd& v_plus) -> Eigen::Vector3d {
+  auto relative_velocity = [&](size_t c, const VectorXdWithRoom& v_plus) -> Eigen::Vector3d {
     return couplings[c].Jv(v_plus) + linear[c].rigid_velocity;
   };
   // the force of contact c integrated to the end of the step, at v+
-  auto integrated_force = [&](size_t c, const Eigen::VectorXd& v_plus) -> Eigen::Vector3d {
+  auto integrated_force = [&](size_t c, const VectorXdWithRoom& v_plus) -> Eigen::Vector3d {
     const Eigen::Vector3d Jv_plus = couplings[c].Jv(v_plus);
     return linear[c].force - dt * linear[c].stiffness * (Jv_plus + linear[c].rigid_velocity) -
            linear[c].damping * (Jv_plus - couplings[c].Jv_start);
@@ -683,7 +683,8 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
 
   // Rounds of solves, each with the contacts that push (coupled_step.h);
   // the first guess: those that push at the warm start.
-  Eigen::VectorXd& v_new = arrays.v_new;
+  VectorXdWithRoom& v_new = arrays.v_new;
+  v_new.resize(n);
   v_new = v + delta;
   carry(v_new, /*with_constant=*/true);  // (the same: J q + constant = the pin velocity)
   for (size_t c = 0; c < contacts.size(); ++c) {
@@ -702,13 +703,13 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
   const bool eliminate = n_rigid > 0 && n_rigid <= kMaxEliminatedRigidDofs;
   std::vector<const Coupling*>& rigid_couplings = arrays.rigid_couplings;
   std::vector<int>& touched = arrays.touched;  // vertex blocks of the active rigid contacts
-  Eigen::VectorXd& work = arrays.work;
+  VectorXdWithRoom& work = arrays.work;
   work.setZero(n);
   Eigen::LDLT<Eigen::MatrixXd>& schur_factor = arrays.schur_factor;
-  Eigen::VectorXd& rigid_part = arrays.rigid_part;  // (the preconditioner's)
+  VectorXdWithRoom& rigid_part = arrays.rigid_part;  // (the preconditioner's)
   rigid_part.resize(n_rigid);
   arrays.body_rhs = b;
-  const Eigen::VectorXd& body_rhs = arrays.body_rhs;
+  const VectorXdWithRoom& body_rhs = arrays.body_rhs;
   arrays.body_blocks = blocks;
   const std::vector<Eigen::Matrix3d>& body_blocks = arrays.body_blocks;
   // (room for J^T G, n_rigid x 3, of a rigid contact or a carried pin)
@@ -716,8 +717,8 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     arrays.product.resize(3 * static_cast<size_t>(n_rigid));
   }
   CoupledStepReport report;
-  Eigen::VectorXd& Av_new = arrays.Av_new;
-  Eigen::VectorXd& r = arrays.r;
+  VectorXdWithRoom& Av_new = arrays.Av_new;
+  VectorXdWithRoom& r = arrays.r;
   Av_new.resize(n);
   r.resize(n);
   // (until the contacts settle, rounds solve to kSettlingTolerance, then
@@ -749,7 +750,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     const double body_outside = bodies[k]->outside_impulse();
     bodies_outside += body_outside * body_outside;
   }
-  auto relax = [&](size_t c, const Eigen::Vector3d& force, const Eigen::VectorXd& v_plus) {
+  auto relax = [&](size_t c, const Eigen::Vector3d& force, const VectorXdWithRoom& v_plus) {
     Coupling& coupling = couplings[c];
     if (!coupling.active) return false;
     const Eigen::Vector3d u = relative_velocity(c, v_plus);
@@ -889,8 +890,8 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
           }
         }
       }
-      Eigen::VectorXd& unit = arrays.unit;
-      Eigen::VectorXd& column = arrays.column;
+      VectorXdWithRoom& unit = arrays.unit;
+      VectorXdWithRoom& column = arrays.column;
       unit.setZero(n);
       column.resize(n_rigid);
       for (int j = 0; j < n_rigid; ++j) {
@@ -917,7 +918,7 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
         block = factor.solve(block);
       }
     }
-    auto precondition = [&](const Eigen::VectorXd& x, Eigen::VectorXd& y) {
+    auto precondition = [&](const VectorXdWithRoom& x, VectorXdWithRoom& y) {
       for (size_t i = 0; i < blocks.size(); ++i) {
         y.segment<3>(3 * static_cast<Eigen::Index>(i)) =
             blocks[i] * x.segment<3>(3 * static_cast<Eigen::Index>(i));
@@ -952,7 +953,8 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     // (E = 2e11 Pa, 2 cm elements, 2 ms) spinning at 12 rad/s errors of 1%
     // of its momentum a step, and it gained 13 times its kinetic energy in
     // a second
-    Eigen::VectorXd& impulse = arrays.impulse;
+    VectorXdWithRoom& impulse = arrays.impulse;
+    impulse.resize(n);
     impulse = b - momentum;
     filter(impulse);
     double outside = bodies_outside;  // (squared)
@@ -966,9 +968,9 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
     // with carried pins: T^T b, and at the start T^T A (T x + c) (v_new: x
     // carried, with the constants c), so that the residual is
     // T^T (b - A c) - T^T A T x
-    Eigen::VectorXd& reduced = arrays.reduced;
+    VectorXdWithRoom& reduced = arrays.reduced;
     if (!slaves.empty()) {
-      reduced = b;
+      reduced = b;  // (its size too)
       gather(reduced);
       multiply_full(v_new, Av_new);
       gather(Av_new);
@@ -1106,7 +1108,8 @@ CoupledStepReport StepCoupled(std::span<DeformableBody* const> bodies,
 
   // the pin residuals (with carried pins, of A itself: Av_new is the reduced system's)
   if (!slaves.empty()) multiply_full(v_new, Av_new);
-  Eigen::VectorXd& residual = arrays.residual;
+  VectorXdWithRoom& residual = arrays.residual;
+  residual.resize(n);
   residual = Av_new - b;
   for (int k = 0; k < num_bodies; ++k) {
     const int size = offset[k + 1] - offset[k];
