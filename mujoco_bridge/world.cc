@@ -695,15 +695,6 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
                   m->opt.timestep);
     ThrowAt(scene_path, 0, message);
   }
-  // MuJoCo 2.2.2 integrates a step taken in two parts (mj_step1, then our
-  // forces, then mj_step2) with Euler when RK4 is asked for
-  if (m->opt.integrator == mjINT_RK4) {
-    world->load_warnings_.push_back(
-        Where(scene_path) +
-        ": <option integrator=\"RK4\">: the scene runs with MuJoCo's Euler integrator instead "
-        "(tetcosim steps MuJoCo in two parts to apply the deformables' forces, and MuJoCo 2.2.2 "
-        "integrates such a step with Euler); set integrator=\"Euler\" or \"implicit\"");
-  }
   try {
     CallMuJoCo([&] {
       world->data_ = mj_makeData(m);
@@ -1453,6 +1444,36 @@ void World::TreeMass(int root, Eigen::MatrixXd* mass_out) {
   const int size = tree_num_dofs_[root];
   MassBlock(root, mass_out);
   Eigen::MatrixXd& mass = *mass_out;
+  if (m->opt.integrator == mjINT_RK4) {
+    // RK4 on M v' = f - B v, f held through its stages: v+ - v = h P(-h
+    // M^-1 B) M^-1 (f - B v), P(z) = 1 + z / 2 + z^2 / 6 + z^3 / 24, so
+    // the step's matrix is (P(X) M^-1)^-1, X = -h M^-1 B (symmetric: each
+    // term (M^-1 B)^k M^-1 is), positive definite where RK4 is stable. (In
+    // kept matrices: a warm step allocates nothing.)
+    const Eigen::Map<const Eigen::VectorXd> damping(m->dof_damping + first, size);
+    if (!(damping.array() > 0.0).any()) return;
+    rk4_factor_.compute(mass);
+    Eigen::MatrixXd& inverse = rk4_inverse_;
+    Eigen::MatrixXd& x = rk4_x_;
+    Eigen::MatrixXd& product = rk4_product_;
+    Eigen::MatrixXd& p = rk4_p_;
+    inverse.setIdentity(size, size);
+    rk4_factor_.solveInPlace(inverse);
+    x = -m->opt.timestep * inverse * damping.asDiagonal();
+    // P(X) = I + X (I / 2 + X (I / 6 + X / 24)), by Horner
+    p = x / 24.0;
+    p.diagonal().array() += 1.0 / 6.0;
+    product.noalias() = x * p;
+    product.diagonal().array() += 0.5;
+    p.noalias() = x * product;
+    p.diagonal().array() += 1.0;
+    product.noalias() = p * inverse;
+    mass = 0.5 * (product + product.transpose());
+    rk4_factor_.compute(mass);
+    mass.setIdentity();
+    rk4_factor_.solveInPlace(mass);
+    return;
+  }
   for (int i = 0; i < size; ++i) mass(i, i) += m->opt.timestep * m->dof_damping[first + i];
   if (!implicit_damps_) return;
   for (int a = 0; a < m->nu; ++a) {
@@ -1708,6 +1729,28 @@ void World::FollowSubstepPaths() {
     const int size = m->jnt_type[j] == mjJNT_FREE ? 7 : m->jnt_type[j] == mjJNT_BALL ? 4 : 1;
     std::copy_n(kept_qpos_.data() + m->jnt_qposadr[j], size, d->qpos + m->jnt_qposadr[j]);
   }
+}
+
+// mj_step2, which integrates with Euler (or implicitly): mj_step's second
+// part. For RK4, mj_step2 would integrate with Euler too (MuJoCo 2.2.2), so
+// the rest of what mj_step does after mj_step1's part is done here, as
+// mj_step does it, then mj_RungeKutta, which holds xfrc_applied (the
+// deformables' forces) through its four stages. Without forces of ours the
+// result is mj_step's, to rounding (tests/mujoco_bridge/world_test.cc).
+void World::StepMuJoCoSecondPart() {
+  const mjModel* m = model_;
+  mjData* d = data_;
+  if (m->opt.integrator != mjINT_RK4) {
+    mj_step2(m, d);
+    return;
+  }
+  mj_fwdActuation(m, d);
+  mj_fwdAcceleration(m, d);
+  mj_fwdConstraint(m, d);
+  mj_sensorAcc(m, d);
+  mj_checkAcc(m, d);
+  if (mjENABLED(mjENBL_FWDINV)) mj_compareFwdInv(m, d);
+  mj_RungeKutta(m, d, 4);
 }
 
 // force at a world point -> force and torque about the centre of mass xipos
@@ -2273,7 +2316,7 @@ void World::StepOnce() {
     }
   }
   phase = Clock::now();
-  CallMuJoCo([&] { mj_step2(m, d); });
+  CallMuJoCo([&] { StepMuJoCoSecondPart(); });
   // the first of MuJoCo's bad-state warnings this step raised (its
   // reset put the bodies back at their initial state: no path to follow),
   // or -1

@@ -290,6 +290,8 @@ class World {
   // the trees in contact and those carrying attachments' pins.
   void BuildRigidSystem(double dt);
   void FindOtherForces();  // other_forces_, once a step
+  // MuJoCo's step after mj_step1 and our forces: mj_step2, or RK4's
+  void StepMuJoCoSecondPart();
   // whether the step linearizes MuJoCo's constraints (<solver constraints>)
   bool LinearizedConstraints() const;
   // MuJoCo's constraints on the trees of the rigid system, linearized about
@@ -312,7 +314,9 @@ class World {
   // The tree's block of the matrix MuJoCo's step integrates its velocities
   // with: M plus the time step times the joints' damping, which its Euler
   // (and implicit) integrator takes implicitly, and (implicit) the
-  // actuators' rates with their velocities and the tendons' damping
+  // actuators' rates with their velocities and the tendons' damping; for
+  // RK4, which takes the damping explicitly at each stage, RK4's matrix
+  // for M v' = f - B v
   void TreeMass(int root, Eigen::MatrixXd* mass);
   double ActuatorForceRate(int actuator) const;
   void AddRigidForce(int body, const Eigen::Vector3d& point, const Eigen::Vector3d& force);
@@ -409,6 +413,9 @@ class World {
   std::vector<double> damping_solution_;
   Eigen::MatrixXd mass_block_;
   Eigen::LDLT<Eigen::MatrixXd> mass_factor_;
+  // TreeMass's under RK4
+  Eigen::LDLT<Eigen::MatrixXd> rk4_factor_;
+  Eigen::MatrixXd rk4_inverse_, rk4_x_, rk4_product_, rk4_p_;
   std::vector<double> tendon_arms_;
   std::vector<double> jacobian_;      // 3 x nv, row-major
   std::vector<double> other_forces_;  // nv

@@ -26,8 +26,9 @@ namespace {
 // A soft cube resting on a lid whose hinge is damped, the lid held on its
 // joint limit by gravity and the cube (as the lids of world_test.cc): a
 // constraint on a damped tree, scaled every step (World::ScaleForDamping)
-std::string LidOnItsLimit() {
-  return LidScene(R"(damping="0.5" range="-90 0" limited="true")", R"(pos="0.05 0 0.245")");
+// (and under RK4, whose matrix for the damping World::TreeMass computes)
+std::string LidOnItsLimit(const std::string& option = "") {
+  return LidScene(R"(damping="0.5" range="-90 0" limited="true")", R"(pos="0.05 0 0.245")", option);
 }
 
 struct SteadyScene {
@@ -41,7 +42,7 @@ struct SteadyScene {
 // contacts both ways), the gripper holding a soft block (a robot's trees
 // and MuJoCo's constraints solved with the step), a strap hung from a
 // swinging body (attachments carried by its tree) and a block on a height
-// field (geom contacts); and the damped lid above. On one and on two
+// field (geom contacts); and the damped lid above, with Euler and RK4. On one and on two
 // threads, with either method.
 TEST(WorldAllocation, WarmStepsOfSettledScenesAllocateNothing) {
   TempDir dir;
@@ -52,6 +53,7 @@ TEST(WorldAllocation, WarmStepsOfSettledScenesAllocateNothing) {
       {bundled + "strap.xml", 60, 60, false},
       {bundled + "terrain.xml", 200, 100, true},
       {dir.Write("damped_lid.xml", LidOnItsLimit()), 300, 100, true},
+      {dir.Write("damped_lid_rk4.xml", LidOnItsLimit(R"(integrator="RK4")")), 300, 100, true},
   };
   for (const SteadyScene& scene : scenes) {
     for (const DepthMethod method : {DepthMethod::kConsistent, DepthMethod::kClosest}) {
