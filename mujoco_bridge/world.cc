@@ -59,9 +59,10 @@ void JacobianRowSegment(const mjModel* m, const MjJacobianRows& jacobian, int ro
 
 // MuJoCo's implicit step, with an actuator whose force changes with its
 // velocity (an affine gain or bias with a velocity term) or a damped
-// tendon, which it takes implicitly (World::TreeMass)
+// tendon, which it takes implicitly, or its RK4, which takes them at its
+// stages (World::TreeMass)
 bool ImplicitStepDamps(const mjModel* m) {
-  if (m->opt.integrator != mjINT_IMPLICIT) return false;
+  if (m->opt.integrator == mjINT_EULER) return false;
   for (int a = 0; a < m->nu; ++a) {
     if ((m->actuator_gaintype[a] == mjGAIN_AFFINE && m->actuator_gainprm[mjNGAIN * a + 2] != 0.0) ||
         (m->actuator_biastype[a] == mjBIAS_AFFINE && m->actuator_biasprm[mjNBIAS * a + 2] != 0.0)) {
@@ -1444,14 +1445,40 @@ void World::TreeMass(int root, Eigen::MatrixXd* mass_out) {
   const int size = tree_num_dofs_[root];
   MassBlock(root, mass_out);
   Eigen::MatrixXd& mass = *mass_out;
+  // scale times the velocity terms MuJoCo takes with the joints' damping
+  // (implicit_damps_): the actuators' rates, where < 0, and the tendons'
+  // damping, into `target`
+  auto add_rates = [&](Eigen::MatrixXd& target, double scale) {
+    for (int a = 0; a < m->nu; ++a) {
+      const double rate = ActuatorForceRate(a);
+      if (!(rate < 0.0)) continue;
+      const Eigen::Map<const Eigen::VectorXd> arms(data_->actuator_moment + a * m->nv + first,
+                                                   size);
+      target.noalias() -= scale * rate * arms * arms.transpose();
+    }
+    const MjJacobianRows tendon_jacobian = {data_->ten_J, data_->ten_J_rownnz, data_->ten_J_rowadr,
+                                            data_->ten_J_colind};
+    if (tendon_arms_.size() < static_cast<size_t>(size)) tendon_arms_.resize(size);
+    Eigen::Map<Eigen::RowVectorXd> arms(tendon_arms_.data(), size);
+    for (int t = 0; t < m->ntendon; ++t) {
+      if (!(m->tendon_damping[t] > 0.0)) continue;
+      JacobianRowSegment(m, tendon_jacobian, t, first, arms);
+      target.noalias() += scale * m->tendon_damping[t] * arms.transpose() * arms;
+    }
+  };
   if (m->opt.integrator == mjINT_RK4) {
-    // RK4 on M v' = f - B v, f held through its stages: v+ - v = h P(-h
-    // M^-1 B) M^-1 (f - B v), P(z) = 1 + z / 2 + z^2 / 6 + z^3 / 24, so
-    // the step's matrix is (P(X) M^-1)^-1, X = -h M^-1 B (symmetric: each
-    // term (M^-1 B)^k M^-1 is), positive definite where RK4 is stable. (In
-    // kept matrices: a warm step allocates nothing.)
-    const Eigen::Map<const Eigen::VectorXd> damping(m->dof_damping + first, size);
-    if (!(damping.array() > 0.0).any()) return;
+    // RK4 on M v' = f - B v, f held through its stages (B: the joints'
+    // damping and the velocity terms above): v+ - v = h P(X) M^-1 (f - B
+    // v), X = -h M^-1 B, P(z) = 1 + z / 2 + z^2 / 6 + z^3 / 24, so the
+    // step's matrix is (P(X) M^-1)^-1 (symmetric: each term (M^-1 B)^k
+    // M^-1 is), positive definite exactly where RK4 is stable for B (P's
+    // root, 2.785, is RK4's bound). (In kept matrices: a warm step
+    // allocates nothing.)
+    Eigen::MatrixXd& damping = rk4_damping_;
+    damping.setZero(size, size);
+    damping.diagonal() = Eigen::Map<const Eigen::VectorXd>(m->dof_damping + first, size);
+    if (implicit_damps_) add_rates(damping, 1.0);
+    if (damping.isZero(0.0)) return;
     rk4_factor_.compute(mass);
     Eigen::MatrixXd& inverse = rk4_inverse_;
     Eigen::MatrixXd& x = rk4_x_;
@@ -1459,7 +1486,7 @@ void World::TreeMass(int root, Eigen::MatrixXd* mass_out) {
     Eigen::MatrixXd& p = rk4_p_;
     inverse.setIdentity(size, size);
     rk4_factor_.solveInPlace(inverse);
-    x = -m->opt.timestep * inverse * damping.asDiagonal();
+    x.noalias() = -m->opt.timestep * inverse * damping;
     // P(X) = I + X (I / 2 + X (I / 6 + X / 24)), by Horner
     p = x / 24.0;
     p.diagonal().array() += 1.0 / 6.0;
@@ -1475,22 +1502,7 @@ void World::TreeMass(int root, Eigen::MatrixXd* mass_out) {
     return;
   }
   for (int i = 0; i < size; ++i) mass(i, i) += m->opt.timestep * m->dof_damping[first + i];
-  if (!implicit_damps_) return;
-  for (int a = 0; a < m->nu; ++a) {
-    const double rate = ActuatorForceRate(a);
-    if (!(rate < 0.0)) continue;
-    const Eigen::Map<const Eigen::VectorXd> arms(data_->actuator_moment + a * m->nv + first, size);
-    mass.noalias() -= m->opt.timestep * rate * arms * arms.transpose();
-  }
-  const MjJacobianRows tendon_jacobian = {data_->ten_J, data_->ten_J_rownnz, data_->ten_J_rowadr,
-                                          data_->ten_J_colind};
-  if (tendon_arms_.size() < static_cast<size_t>(size)) tendon_arms_.resize(size);
-  Eigen::Map<Eigen::RowVectorXd> arms(tendon_arms_.data(), size);
-  for (int t = 0; t < m->ntendon; ++t) {
-    if (!(m->tendon_damping[t] > 0.0)) continue;
-    JacobianRowSegment(m, tendon_jacobian, t, first, arms);
-    mass.noalias() += m->opt.timestep * m->tendon_damping[t] * arms.transpose() * arms;
-  }
+  if (implicit_damps_) add_rates(mass, m->opt.timestep);
 }
 
 // d force / d velocity of actuator a, as MuJoCo's implicit step takes it:

@@ -315,8 +315,8 @@ class World {
   // with: M plus the time step times the joints' damping, which its Euler
   // (and implicit) integrator takes implicitly, and (implicit) the
   // actuators' rates with their velocities and the tendons' damping; for
-  // RK4, which takes the damping explicitly at each stage, RK4's matrix
-  // for M v' = f - B v
+  // RK4, which takes those explicitly at each stage, RK4's matrix for M v'
+  // = f - B v
   void TreeMass(int root, Eigen::MatrixXd* mass);
   double ActuatorForceRate(int actuator) const;
   void AddRigidForce(int body, const Eigen::Vector3d& point, const Eigen::Vector3d& force);
@@ -400,7 +400,8 @@ class World {
   std::vector<int> tree_num_dofs_;
   // per root body: MuJoCo's step takes more than M for its tree (TreeMass)
   std::vector<char> tree_damped_;
-  // MuJoCo's implicit step takes actuators' rates or tendons' damping (TreeMass)
+  // MuJoCo's implicit (or RK4) step takes actuators' rates or tendons'
+  // damping (TreeMass)
   bool implicit_damps_ = false;
   std::vector<int> tree_slot_;
   std::vector<int> rigid_roots_;
@@ -415,7 +416,7 @@ class World {
   Eigen::LDLT<Eigen::MatrixXd> mass_factor_;
   // TreeMass's under RK4
   Eigen::LDLT<Eigen::MatrixXd> rk4_factor_;
-  Eigen::MatrixXd rk4_inverse_, rk4_x_, rk4_product_, rk4_p_;
+  Eigen::MatrixXd rk4_damping_, rk4_inverse_, rk4_x_, rk4_product_, rk4_p_;
   std::vector<double> tendon_arms_;
   std::vector<double> jacobian_;      // 3 x nv, row-major
   std::vector<double> other_forces_;  // nv

@@ -891,9 +891,11 @@ TEST(Coupling, AHingeHeldByItsFrictionLossTurnsAsMuJoCoTurnsIt) {
 // with the control clamped, 0.3 rad/s; the tendon's damping left out, 2.2
 // rad/s.) Under RK4, which takes the damping explicitly at each of its
 // four stages, the step's matrix is RK4's for M v' = f - B v (World::
-// TreeMass): 3.6e-3 rad/s free and 1.7e-2 on the limit, where RK4's stages
-// also move the gravity's torque and re-solve the limit (with M + h B as
-// for Euler, 0.65 and 0.044; with M alone, 1.67 and 0.14).
+// TreeMass), B the joint's damping, a velocity servo's or a tendon's:
+// 3.6e-3 rad/s free (with each of the three), and 1.7e-2 on the limit,
+// where RK4's stages also move the gravity's torque and re-solve the limit
+// (with M + h B as for Euler, 0.65 and 0.044; with M alone, 1.67 and 0.14;
+// with the servo's and the tendon's left out of B, 0.80 and 1.67).
 TEST(Coupling, ADampedHingeTurnsAsMuJoCoTurnsIt) {
   struct Case {
     const char* name;
@@ -930,6 +932,11 @@ TEST(Coupling, ADampedHingeTurnsAsMuJoCoTurnsIt) {
       {"free, RK4", "damping=\"1\"", "integrator=\"RK4\"", "", "", "pos=\"0.05 0 0.3\"", 80, 1e-2},
       {"on its limit, RK4", "damping=\"1\" range=\"-60 0\" limited=\"true\"", "integrator=\"RK4\"",
        "", "", "pos=\"0.05 0 0.3\"", 80, 3e-2},
+      {"a velocity servo, RK4", "damping=\"0.5\"", "integrator=\"RK4\"",
+       "<actuator><velocity joint=\"hinge\" kv=\"0.5\"/></actuator>", "", "pos=\"0.05 0 0.3\"", 80,
+       1e-2},
+      {"a damped tendon, RK4", "", "integrator=\"RK4\"", tendon, "", "pos=\"0.05 0 0.3\"", 80,
+       1e-2},
   };
   for (const Case& c : cases) {
     SCOPED_TRACE(c.name);
