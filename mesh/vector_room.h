@@ -40,10 +40,10 @@ void ResizeWithRoom(std::vector<T, Allocator>& v, std::size_t n) {
 // array reallocates only at a new high. It is an Eigen::Map over storage it
 // owns, aligned as Eigen::VectorXd's is (Eigen then loads it aligned), and
 // computes as a VectorXd does, to the bit (tests/mesh/vector_room_test.cc).
-// Unlike
-// VectorXd, it does not resize on assignment from an expression: give it
-// its size first (resize, setZero(n)). Copying one assigns its values and
-// size; it cannot be moved (the map points into its own storage).
+// Unlike VectorXd, it does not resize on assignment from an expression:
+// give it its size first (resize, setZero(n)). Copying one assigns its
+// values and size; it cannot be moved (the map points into its own
+// storage).
 class VectorXdWithRoom : public Eigen::Map<Eigen::VectorXd, Eigen::AlignedMax> {
  public:
   using Base = Eigen::Map<Eigen::VectorXd, Eigen::AlignedMax>;
@@ -72,7 +72,6 @@ class VectorXdWithRoom : public Eigen::Map<Eigen::VectorXd, Eigen::AlignedMax> {
     Base::setZero();
   }
   using Base::setZero;
-  std::size_t capacity() const { return storage_.size(); }
 
  private:
   std::vector<double, Eigen::aligned_allocator<double>> storage_;

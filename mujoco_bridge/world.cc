@@ -57,11 +57,12 @@ void JacobianRowSegment(const mjModel* m, const MjJacobianRows& jacobian, int ro
   }
 }
 
-// MuJoCo's implicit step, with an actuator whose force changes with its
-// velocity (an affine gain or bias with a velocity term) or a damped
-// tendon, which it takes implicitly, or its RK4, which takes them at its
-// stages (World::TreeMass)
-bool ImplicitStepDamps(const mjModel* m) {
+// Whether MuJoCo's step takes velocity terms besides the joints' damping
+// into the tree's matrix (World::TreeMass): its implicit step and its RK4,
+// with an actuator whose force changes with its velocity (an affine gain
+// or bias with a velocity term) or a damped tendon (the implicit step
+// takes them implicitly, RK4 at each of its stages)
+bool StepDampsVelocityTerms(const mjModel* m) {
   if (m->opt.integrator == mjINT_EULER) return false;
   for (int a = 0; a < m->nu; ++a) {
     if ((m->actuator_gaintype[a] == mjGAIN_AFFINE && m->actuator_gainprm[mjNGAIN * a + 2] != 0.0) ||
@@ -923,10 +924,10 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
   world->tree_first_dof_.assign(m->nbody, -1);
   world->tree_num_dofs_.assign(m->nbody, 0);
   world->tree_damped_.assign(m->nbody, 0);
-  world->implicit_damps_ = ImplicitStepDamps(m);
+  world->damps_velocity_terms_ = StepDampsVelocityTerms(m);
   for (int dof = 0; dof < m->nv; ++dof) {
     const int root = m->body_rootid[m->dof_bodyid[dof]];
-    if (m->dof_damping[dof] > 0.0 || world->implicit_damps_) world->tree_damped_[root] = 1;
+    if (m->dof_damping[dof] > 0.0 || world->damps_velocity_terms_) world->tree_damped_[root] = 1;
     if (world->tree_first_dof_[root] < 0) world->tree_first_dof_[root] = dof;
     if (world->tree_first_dof_[root] + world->tree_num_dofs_[root] != dof) {
       throw Error(scene_path + ": MuJoCo's degrees of freedom of the tree of body '" +
@@ -1446,7 +1447,7 @@ void World::TreeMass(int root, Eigen::MatrixXd* mass_out) {
   MassBlock(root, mass_out);
   Eigen::MatrixXd& mass = *mass_out;
   // scale times the velocity terms MuJoCo takes with the joints' damping
-  // (implicit_damps_): the actuators' rates, where < 0, and the tendons'
+  // (damps_velocity_terms_): the actuators' rates, where < 0, and the tendons'
   // damping, into `target`
   auto add_rates = [&](Eigen::MatrixXd& target, double scale) {
     for (int a = 0; a < m->nu; ++a) {
@@ -1477,7 +1478,7 @@ void World::TreeMass(int root, Eigen::MatrixXd* mass_out) {
     Eigen::MatrixXd& damping = rk4_damping_;
     damping.setZero(size, size);
     damping.diagonal() = Eigen::Map<const Eigen::VectorXd>(m->dof_damping + first, size);
-    if (implicit_damps_) add_rates(damping, 1.0);
+    if (damps_velocity_terms_) add_rates(damping, 1.0);
     if (damping.isZero(0.0)) return;
     rk4_factor_.compute(mass);
     Eigen::MatrixXd& inverse = rk4_inverse_;
@@ -1502,7 +1503,7 @@ void World::TreeMass(int root, Eigen::MatrixXd* mass_out) {
     return;
   }
   for (int i = 0; i < size; ++i) mass(i, i) += m->opt.timestep * m->dof_damping[first + i];
-  if (implicit_damps_) add_rates(mass, m->opt.timestep);
+  if (damps_velocity_terms_) add_rates(mass, m->opt.timestep);
 }
 
 // d force / d velocity of actuator a, as MuJoCo's implicit step takes it:

@@ -400,9 +400,9 @@ class World {
   std::vector<int> tree_num_dofs_;
   // per root body: MuJoCo's step takes more than M for its tree (TreeMass)
   std::vector<char> tree_damped_;
-  // MuJoCo's implicit (or RK4) step takes actuators' rates or tendons'
-  // damping (TreeMass)
-  bool implicit_damps_ = false;
+  // MuJoCo's implicit or RK4 step takes actuators' rates or tendons'
+  // damping with the joints' (TreeMass)
+  bool damps_velocity_terms_ = false;
   std::vector<int> tree_slot_;
   std::vector<int> rigid_roots_;
   RigidSystem rigid_;

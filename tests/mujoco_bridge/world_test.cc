@@ -2214,7 +2214,8 @@ TEST(WorldStep, RungeKuttaStepsTheRigidBodiesAsMjStepDoes) {
     std::unique_ptr<World> world = World::Load(path);
     EXPECT_TRUE(world->load_warnings().empty());
     const mjModel* m = world->mj_model();
-    mjData* d = mj_makeData(m);
+    const std::unique_ptr<mjData, decltype(&mj_deleteData)> data(mj_makeData(m), mj_deleteData);
+    mjData* d = data.get();
     mj_forward(m, d);
     for (int step = 0; step < 400; ++step) {
       world->Step();
@@ -2225,7 +2226,6 @@ TEST(WorldStep, RungeKuttaStepsTheRigidBodiesAsMjStepDoes) {
     for (int i = 0; i < m->nq; ++i) EXPECT_NEAR(world->mj_data()->qpos[i], d->qpos[i], 1e-12) << i;
     for (int i = 0; i < m->nv; ++i) EXPECT_NEAR(world->mj_data()->qvel[i], d->qvel[i], 1e-12) << i;
     final_angle.push_back(d->qpos[0]);
-    mj_deleteData(d);
   }
   EXPECT_GT(std::abs(final_angle[0] - final_angle[1]), 1e-3) << "RK4 against Euler, rad";
 }
