@@ -44,7 +44,8 @@ void RunSceneInfo(const InfoOptions& options) {
   }
   out["made_proxies"] = nlohmann::json::array();
   for (const World::MadeProxy& made : world->made_proxies()) {
-    out["made_proxies"].push_back({{"name", made.geom}, {"why", made.why}});
+    out["made_proxies"].push_back(
+        {{"name", made.geom}, {"why", made.why}, {"tetrahedra", made.num_tets}});
   }
   out["deformables"] = nlohmann::json::array();
   for (int i = 0; i < world->num_deformables(); ++i) {
@@ -70,7 +71,8 @@ void RunSceneInfo(const InfoOptions& options) {
     std::printf("geom         %s: %s, without a proxy\n", geom.name.c_str(), geom.shape.c_str());
   }
   for (const World::MadeProxy& made : world->made_proxies()) {
-    std::printf("geom         %s: a proxy made for it (%s)\n", made.geom.c_str(), made.why.c_str());
+    std::printf("geom         %s: a proxy of %d tetrahedra made for it (%s)\n", made.geom.c_str(),
+                made.num_tets, made.why.c_str());
   }
   for (int i = 0; i < world->num_deformables(); ++i) {
     const DeformableBody& body = world->deformable(i);

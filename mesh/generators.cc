@@ -334,6 +334,32 @@ RawMesh MakeCapsule(double radius, double half_length, int resolution) {
   return out.Finish(Describe("capsule", {radius, half_length}, resolution));
 }
 
+RawMesh ConeToPoint(const TetMesh& solid, const Eigen::Vector3d& apex) {
+  const std::vector<int>& surface_vertices = solid.surface_vertices();
+  const Triangles& surface = solid.surface();
+  std::vector<int> index(solid.num_vertices(), -1);
+  MeshBuilder out;
+  for (int v : surface_vertices) {
+    index[v] = static_cast<int>(out.points.size());
+    out.points.push_back(solid.positions().row(v).transpose());
+  }
+  const int centre = static_cast<int>(out.points.size());
+  out.points.push_back(apex);
+  out.tets.reserve(surface.rows());
+  for (Eigen::Index f = 0; f < surface.rows(); ++f) {
+    // (counter-clockwise seen from outside: (a, c, b, apex) is positive
+    // just when the triangle faces away from the apex)
+    const int a = index[surface(f, 0)], b = index[surface(f, 1)], c = index[surface(f, 2)];
+    if (!(SignedTetVolume(out.points[a], out.points[c], out.points[b], apex) > 0.0)) {
+      throw Error(solid.source() + ": surface triangle " + std::to_string(f) +
+                  " does not face away from the point the mesh is coned to; the surface "
+                  "must be seen whole from it");
+    }
+    out.tets.push_back({a, c, b, centre});
+  }
+  return out.Finish("the surface of " + solid.source() + " coned to a point");
+}
+
 RawMesh MakeTorus(double major_radius, double minor_radius, int resolution) {
   MeshBuilder out;
   const int n = resolution;

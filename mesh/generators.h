@@ -26,6 +26,14 @@ RawMesh MakeCylinder(double radius, double half_height, int resolution);
 RawMesh MakeCapsule(double radius, double half_length, int resolution);
 RawMesh MakeTorus(double major_radius, double minor_radius, int resolution);
 
+// A mesh of the same solid as `solid`, a tetrahedral mesh whose surface is
+// star-shaped about `apex` (seen whole from it, as a convex solid's surface
+// is from any point inside): one tetrahedron joining each surface triangle
+// to the apex, so its surface is the same with as many tetrahedra as it has
+// triangles, however fine (a rigid proxy needs a fine surface, not a fine
+// inside). Throws Error when a triangle does not face away from the apex.
+RawMesh ConeToPoint(const TetMesh& solid, const Eigen::Vector3d& apex);
+
 // True when text looks like a generator spec "shape:key=value:..." with a
 // known shape name.
 bool IsShapeSpec(const std::string& text);

@@ -101,6 +101,16 @@ class SceneParser {
     Fail(element, std::string(name) + " must be " + first + " or " + second);
   }
 
+  AutoProxies AutoProxiesOf(const XMLElement* element) const {
+    const char* text = element->Attribute("autoproxy");
+    if (!text) return AutoProxies::kNarrowAndRound;
+    const std::string_view value(text);
+    if (value == "true") return AutoProxies::kNarrowAndRound;
+    if (value == "narrow") return AutoProxies::kNarrow;
+    if (value == "false") return AutoProxies::kNone;
+    Fail(element, "autoproxy must be true, narrow or false");
+  }
+
   bool Bool(const XMLElement* element, const char* name, bool fallback) const {
     return Either(element, name, "true", "false", fallback);
   }
@@ -242,7 +252,7 @@ class SceneParser {
           // thousand times mu times the depth before it slides; 1000 times
           // stiffer holds within a thousandth of it)
           scene.stick_stiffness = Number(child, "stickstiffness", 1e-3, 1e3);
-          scene.auto_proxies = Bool(child, "autoproxy", true);
+          scene.auto_proxies = AutoProxiesOf(child);
           scene.contact_area =
               Either(child, "area", "whole", "facing", scene.contact_area == ContactArea::kWhole)
                   ? ContactArea::kWhole

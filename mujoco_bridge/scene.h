@@ -75,6 +75,18 @@ struct SolverSpec {
   int max_iterations = 1000;
 };
 
+// Which geoms that deformables meet get a proxy made for them without a
+// <rigidtet> (<contact autoproxy>): those narrower than the gaps between a
+// deformable's surface vertices (which could sink in between them and pass
+// through), and round ones (spheres, ellipsoids, capsules, cylinders) up to
+// several times as wide (which would sink in between them and roll over
+// them as over a bed of nails); World::Load has the numbers.
+enum class AutoProxies {
+  kNone,            // "false"
+  kNarrow,          // "narrow"
+  kNarrowAndRound,  // "true" (the default)
+};
+
 struct SceneSpec {
   std::string path;  // the scene file
   std::string mjcf;  // the MJCF without <deformable>
@@ -89,9 +101,8 @@ struct SceneSpec {
   // the sticking spring's stiffness k_t as a fraction of the contact's
   // normal k (ContactSettings::stick_stiffness); default 1
   std::optional<double> stick_stiffness;
-  // a geom narrower than the gaps between a deformable's surface vertices
-  // gets a generated <rigidtet> (World::made_proxies)
-  bool auto_proxies = true;
+  // which geoms get a generated <rigidtet> (World::made_proxies)
+  AutoProxies auto_proxies = AutoProxies::kNarrowAndRound;
   // what area a vertex stands for in a contact (ContactAreaOf)
   ContactArea contact_area = ContactArea::kWhole;
   SolverSpec solver;

@@ -91,6 +91,35 @@ constexpr double kBytesPerProxyTet = 600.0;
 // volume is warned of: deformables meet its hull.
 constexpr double kConvexHullMargin = 1.02;
 
+// Round geoms (spheres, ellipsoids, and capsules and cylinders up to
+// kMaxConedHalfLength radii in half-length) narrower than this many times
+// the gaps between a deformable's surface vertices get a proxy (<contact
+// autoproxy>), as the narrower geoms of every kind do: met as a geom, one
+// sinks in between the vertices and rolls over them as over a bed of
+// nails. Measured (tests/scenarios/ball_test.cc), a 10 cm rigid ball
+// rolling down a 20 degree slope on a stiff slab whose surface gaps are
+// 1/1.4, 1/2.8 and 1/4.2 of its width (and 1/7.1, on a slab of 144k
+// tetrahedra): met as a geom, 0.35, 0.70, 0.81 (0.90) of a rigid ball's
+// rate; with a level-3 proxy, 0.93 on each (what the step's resistance and
+// the proxy's facets leave).
+constexpr double kRoundProxyWidths = 8.0;
+// A made proxy of a round geom has facets that turn by about 0.13 rad (a
+// sphere or an ellipsoid at level 3, a capsule or a cylinder 12 cells
+// across: its rim in 48 segments). The same ball with a level-1 and a
+// level-2 proxy (facets of 0.52 and 0.26 rad): 0.72 to 0.95 and 0.86 to
+// 0.87 of the rigid rate.
+constexpr double kRoundProxyCellsAcross = 12.0;
+// A rigid proxy needs a fine surface, not a fine inside: a round geom's
+// made proxy is its surface coned to its centre (ConeToPoint: a level-3
+// sphere in 1280 tetrahedra, not 10,240), which is why a capsule or a
+// cylinder longer than this many radii in half-length is not taken as
+// round (coned, its tetrahedra would reach from end to end; solid, a long
+// rod 12 cells across would take 30k to 100k). Measured on the terrain
+// scene, whose pebble (an ellipsoid) is given a proxy: the collision phase
+// took 0.40 ms a step with the solid level-3 mesh, 0.08 with the coned one
+// and with a solid level-2 one (1280 tetrahedra each), 0.02 with none.
+constexpr double kMaxConedHalfLength = 2.0;
+
 // A geom is passed over for a deformable whose box lies farther than this
 // (m) beyond the geom's bounding sphere or above its plane: room for the
 // rounding of the box tests, against which every vertex is still tested.
@@ -317,14 +346,31 @@ Eigen::Isometry3d GeomInBody(const mjModel* m, int geom) {
   return X_BG;
 }
 
-// The proxy made without a <rigidtet> for a geom narrower than the gaps
-// between a deformable's surface vertices (NarrowGeom): its surface
-// vertices at most `spacing` apart (a box's cells, up to 256 along an
-// axis; a mesh's convex hull, its faces split at their longest edges, up
-// to 20,000 faces; a sphere or an ellipsoid at level 1 to 3 of MakeSphere,
-// whose edges are 1.05 r / 2^level for a radius r; a capsule or a
-// cylinder 3 to 64 cells across, and as long along it). Null for a plane
-// or a height field. Throws Error for a mesh without a hull.
+// Whether a geom is round (kRoundProxyWidths): a sphere, an ellipsoid, or a
+// capsule or a cylinder up to kMaxConedHalfLength radii in half-length
+bool IsRound(const mjModel* m, int geom) {
+  const double* size = m->geom_size + 3 * geom;
+  switch (m->geom_type[geom]) {
+    case mjGEOM_SPHERE:
+    case mjGEOM_ELLIPSOID:
+      return true;
+    case mjGEOM_CAPSULE:
+    case mjGEOM_CYLINDER:
+      return size[1] <= kMaxConedHalfLength * size[0];
+    default:
+      return false;
+  }
+}
+
+// The proxy made without a <rigidtet> for a geom that is narrow or round
+// (ProxyReasonOf): its surface vertices at most `spacing` apart (a box's
+// cells, up to 256 along an axis; a mesh's convex hull, its faces split at
+// their longest edges, up to 20,000 faces; a sphere or an ellipsoid at
+// level 1 to 3 of MakeSphere, whose edges are 1.05 r / 2^level for a
+// radius r; a capsule or a cylinder 3 to 64 cells across, and as long
+// along it), its surface coned to its centre when it is round (IsRound),
+// else solid. Null for a plane or a height field. Throws Error for a mesh
+// without a hull.
 std::optional<RawMesh> MadeProxyMesh(const mjModel* m, int geom, double spacing, long line,
                                      const std::string& path) {
   const double* size = m->geom_size + 3 * geom;
@@ -344,11 +390,16 @@ std::optional<RawMesh> MadeProxyMesh(const mjModel* m, int geom, double spacing,
     case mjGEOM_ELLIPSOID: {
       const double radius = std::max({size[0], size[1], size[2]});
       const double level = std::ceil(std::log2(1.05 * radius / spacing));
-      return GeomMesh(m, geom, static_cast<int>(std::clamp(level, 1.0, 3.0)), line, path);
+      const RawMesh solid =
+          GeomMesh(m, geom, static_cast<int>(std::clamp(level, 1.0, 3.0)), line, path);
+      return ConeToPoint(TetMesh::Build(solid), Eigen::Vector3d::Zero());
     }
     case mjGEOM_CAPSULE:
-    case mjGEOM_CYLINDER:
-      return GeomMesh(m, geom, cells(2.0 * size[0], 3.0, 64.0), line, path);
+    case mjGEOM_CYLINDER: {
+      RawMesh solid = GeomMesh(m, geom, cells(2.0 * size[0], 3.0, 64.0), line, path);
+      if (!IsRound(m, geom)) return solid;
+      return ConeToPoint(TetMesh::Build(std::move(solid)), Eigen::Vector3d::Zero());
+    }
     default:
       return std::nullopt;
   }
@@ -374,17 +425,33 @@ double MeanSurfaceGap(const TetMesh& mesh, const Positions& x) {
   return count > 0 ? sum / static_cast<double>(count) : 0.0;
 }
 
-// Why a geom `width` wide (GeomPassageWidth) could pass through a
-// deformable whose surface vertices leave gaps `gap` wide (MeanSurfaceGap,
-// of `body`), touching none of them, or empty: it is narrower than the gaps.
-std::string NarrowGeom(double width, double gap, const std::string& body) {
-  if (!(width < gap)) return "";
-  char why[256];
+// Why a geom `width` wide (GeomPassageWidth) needs a proxy among
+// deformables whose surface vertices leave gaps up to `gap` wide
+// (MeanSurfaceGap, of `body`), or empty: narrow, it is narrower than the
+// gaps and could pass through touching none of them; round, it is
+// narrower than kRoundProxyWidths gaps and would sink in between them.
+struct ProxyReason {
+  bool narrow = false;
+  std::string why;
+};
+ProxyReason ProxyReasonOf(bool round, double width, double gap, const std::string& body) {
+  char why[320];
+  if (width < gap) {
+    std::snprintf(why, sizeof(why),
+                  "%.3g m wide, less than the %.3g m gaps between the surface vertices of tetbody "
+                  "'%s'",
+                  width, gap, body.c_str());
+    return {true, why};
+  }
+  if (!round || !(width < kRoundProxyWidths * gap)) return {};
+  // (a ball `width` across sinks this far into a round gap `gap` across)
+  const double sag = 0.5 * width - std::sqrt(0.25 * (width * width - gap * gap));
   std::snprintf(why, sizeof(why),
-                "%.3g m wide, less than the %.3g m gaps between the surface vertices of tetbody "
-                "'%s'",
-                width, gap, body.c_str());
-  return why;
+                "round, %.3g m wide, less than %g times the %.3g m gaps between the surface "
+                "vertices of tetbody '%s': met as a geom, it would sink up to %.2g m in between "
+                "them and roll over them as over a bed of nails",
+                width, kRoundProxyWidths, gap, body.c_str(), sag);
+  return {false, why};
 }
 
 // an MJCF <skin> of a deformable's surface with one bone on the world body:
@@ -859,7 +926,9 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
   // vertices are 33 mm apart, tests/scenarios/small_geom_test.cc): such a
   // geom gets a proxy made for it (<contact autoproxy>; a mesh, of its
   // convex hull), whose vertices meet the deformable's tetrahedra, or with
-  // autoproxy off a warning (NarrowGeom).
+  // autoproxy off a warning. So does a round geom up to kRoundProxyWidths
+  // times as wide (without a warning when autoproxy is off or narrow): it
+  // would sink in between them and roll over them (ProxyReasonOf).
   double gap = 0.0;  // the coarsest deformable's (MeanSurfaceGap)
   std::string coarsest;
   for (const auto& body : world->bodies_) {
@@ -874,16 +943,22 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
     if (!(m->geom_contype[g] & 1) && !(m->geom_conaffinity[g] & 1)) continue;
     const std::string name = GeomName(m, g);
     const double width = GeomPassageWidth(m, g);
-    if (const std::string narrow = NarrowGeom(width, gap, coarsest); !narrow.empty()) {
+    const bool round = IsRound(m, g);
+    const ProxyReason reason = ProxyReasonOf(round, width, gap, coarsest);
+    const bool wanted = reason.narrow ? scene.auto_proxies != AutoProxies::kNone
+                                      : scene.auto_proxies == AutoProxies::kNarrowAndRound;
+    if (!reason.why.empty() && (reason.narrow || wanted)) {
       std::string unmade;  // why no proxy could be made, if one was tried
-      if (scene.auto_proxies) {
+      if (wanted) {
         try {
-          std::optional<RawMesh> raw = MadeProxyMesh(m, g, 0.5 * width, 0, scene_path);
+          const double spacing = round ? width / kRoundProxyCellsAcross : 0.5 * width;
+          std::optional<RawMesh> raw = MadeProxyMesh(m, g, spacing, 0, scene_path);
           if (raw) {
+            const int num_tets = static_cast<int>(raw->tets.rows());
             add_proxy(m->geom_bodyid[g], std::move(*raw), GeomInBody(m, g), m->geom_friction[3 * g],
                       0, "");
             world->geom_has_proxy_[g] = 1;
-            world->made_proxies_.push_back({GeomLabel(m, g), narrow});
+            world->made_proxies_.push_back({GeomLabel(m, g), reason.why, num_tets});
             continue;
           }
         } catch (const Error& e) {  // (a hull with a flat face, say: warned of instead)
@@ -891,14 +966,15 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
         }
       }
       std::string warning = Where(scene_path);
-      warning.append(": ").append(name).append(": ").append(narrow);
-      warning.append(
-          " (deformables meet geoms at their vertices: it can sink in between them, touching "
-          "none, and pass through if it fits)");
+      warning.append(": ").append(name).append(": ").append(reason.why);
+      if (reason.narrow) {
+        warning.append(
+            " (deformables meet geoms at their vertices: it can sink in between them, touching "
+            "none, and pass through if it fits)");
+      }
       warning.append(unmade).append(
-          scene.auto_proxies
-              ? "; give it a <rigidtet> with a tetrahedral mesh of it, or refine the tetbody"
-              : "; give it a <rigidtet>, or leave autoproxy on, or refine the tetbody");
+          wanted ? "; give it a <rigidtet> with a tetrahedral mesh of it, or refine the tetbody"
+                 : "; give it a <rigidtet>, or leave autoproxy on, or refine the tetbody");
       world->load_warnings_.push_back(std::move(warning));
     }
     try {

@@ -209,12 +209,14 @@ class World {
   std::vector<GeomSummary> GeomsMetByShape() const;
   // The geoms given a proxy without a <rigidtet> (<contact autoproxy>, on by
   // default): geoms narrower than the gaps between a deformable's surface
-  // vertices (GeomPassageWidth), in geom order: the geom, named as
-  // GeomsMetByShape names it, and why ("0.012 m wide, less than the 0.0471
-  // m gaps between the surface vertices of tetbody 'block'").
+  // vertices (GeomPassageWidth), and round ones less than 8 times as wide,
+  // in geom order: the geom, named as GeomsMetByShape names it, why ("0.012
+  // m wide, less than the 0.0471 m gaps between the surface vertices of
+  // tetbody 'block'"), and its proxy's tetrahedra.
   struct MadeProxy {
     std::string geom;
     std::string why;
+    int num_tets = 0;
   };
   const std::vector<MadeProxy>& made_proxies() const { return made_proxies_; }
   int ProxyBody(int proxy) const;

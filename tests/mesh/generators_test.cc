@@ -2,9 +2,13 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <array>
 #include <cmath>
 #include <numbers>
+#include <random>
 #include <string>
+#include <vector>
 
 #include "mesh/error.h"
 #include "mesh/quality.h"
@@ -106,6 +110,86 @@ TEST(Generators, BoxCounts) {
   EXPECT_EQ(six.num_vertices(), 512);
   TetMesh five = TetMesh::Build(MakeBox({1, 1, 1}, {2, 3, 4}, 5));
   EXPECT_EQ(five.num_tets(), 5 * 24);
+}
+
+// Whether p is inside tetrahedron t of the mesh (its four sub-volumes all
+// at least -tolerance times the tet's)
+bool InTet(const TetMesh& mesh, int t, const Eigen::Vector3d& p, double tolerance) {
+  std::array<Eigen::Vector3d, 4> x;
+  for (int k = 0; k < 4; ++k) x[k] = mesh.positions().row(mesh.tets()(t, k)).transpose();
+  const double volume = SignedTetVolume(x[0], x[1], x[2], x[3]);
+  for (int k = 0; k < 4; ++k) {
+    std::array<Eigen::Vector3d, 4> y = x;
+    y[k] = p;
+    if (SignedTetVolume(y[0], y[1], y[2], y[3]) < -tolerance * volume) return false;
+  }
+  return true;
+}
+
+// A convex solid's surface coned to a point inside it (the made proxies of
+// round geoms): one positive tetrahedron per surface triangle, the same
+// surface (each triangle's corners where the solid's are), the same volume
+// to rounding, and the same points inside (random points, brute force over
+// both meshes' tetrahedra: inside one just when inside the other, but
+// within 1e-9 of the surface); a surface not seen whole from the point (a
+// torus's, from its centre) is an error.
+TEST(Generators, ASurfaceConedToAPointFillsTheSameSolid) {
+  for (const char* spec : {"sphere:size=0.05:res=3", "capsule:size=0.1,0.1:res=12",
+                           "cylinder:size=0.1,0.02:res=6", "box:size=0.1,0.2,0.3:res=3,4,5"}) {
+    SCOPED_TRACE(spec);
+    const TetMesh solid = TetMesh::Build(MakeShape(spec));
+    const TetMesh coned = TetMesh::Build(ConeToPoint(solid, Eigen::Vector3d(0.001, -0.002, 0.003)));
+    EXPECT_EQ(coned.num_tets(), solid.surface().rows());
+    EXPECT_EQ(coned.num_vertices(), static_cast<int>(solid.surface_vertices().size()) + 1);
+    EXPECT_EQ(coned.num_flipped(), 0);
+    EXPECT_TRUE(coned.warnings().empty());
+    EXPECT_TRUE(IsClosedOrientedSurface(coned));
+    EXPECT_NEAR(coned.total_volume(), solid.total_volume(), 1e-12 * solid.total_volume());
+    // the surfaces' triangles as sorted corner positions, sorted
+    auto triangles = [](const TetMesh& mesh) {
+      std::vector<std::array<std::array<double, 3>, 3>> all;
+      for (Eigen::Index f = 0; f < mesh.surface().rows(); ++f) {
+        std::array<std::array<double, 3>, 3> corners;
+        for (int k = 0; k < 3; ++k) {
+          const auto p = mesh.positions().row(mesh.surface()(f, k));
+          corners[k] = {p.x(), p.y(), p.z()};
+        }
+        std::sort(corners.begin(), corners.end());
+        all.push_back(corners);
+      }
+      std::sort(all.begin(), all.end());
+      return all;
+    };
+    EXPECT_EQ(triangles(coned), triangles(solid));
+    std::mt19937 random(7);
+    const Eigen::Vector3d lo = solid.bbox_min(), hi = solid.bbox_max();
+    std::uniform_real_distribution<double> unit(0.0, 1.0);
+    int inside = 0;
+    for (int i = 0; i < 400; ++i) {
+      const Eigen::Vector3d p =
+          lo + (hi - lo).cwiseProduct(Eigen::Vector3d(unit(random), unit(random), unit(random)));
+      auto in = [&](const TetMesh& mesh, double tolerance) {
+        for (int t = 0; t < mesh.num_tets(); ++t) {
+          if (InTet(mesh, t, p, tolerance)) return true;
+        }
+        return false;
+      };
+      // (a point within rounding of the surface may fall either way)
+      if (in(solid, -1e-9) != in(solid, 1e-9)) continue;
+      const bool in_solid = in(solid, 0.0);
+      inside += in_solid;
+      EXPECT_EQ(in(coned, 1e-12), in_solid) << p.transpose();
+    }
+    EXPECT_GT(inside, 100);
+  }
+  const TetMesh torus = TetMesh::Build(MakeShape("torus:size=0.1,0.03:res=2"));
+  try {
+    ConeToPoint(torus, Eigen::Vector3d::Zero());
+    ADD_FAILURE() << "no error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("does not face away from the point"), std::string::npos)
+        << e.what();
+  }
 }
 
 TEST(Generators, BadSpecsAreErrors) {

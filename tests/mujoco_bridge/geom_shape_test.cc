@@ -435,8 +435,9 @@ TEST(GeomShape, PointsTheConsistentMethodDoesNotReachAreCountedAsFallback) {
   }
 }
 
-// The bundled terrain scene: soft bodies dropped on a height field, a
-// convex mesh and a loose ellipsoid, all met without proxies. After a
+// The bundled terrain scene: soft bodies dropped on a height field and a
+// convex mesh, met without proxies, and a loose ellipsoid, given a proxy
+// (round, near the bodies' gaps: <contact autoproxy>). After a
 // second no vertex lies deeper than 2 mm below the highest geom surface
 // over it (MuJoCo's ray from above: nothing fell through), and every body
 // has come down onto something.
@@ -444,12 +445,13 @@ TEST(GeomShape, BundledTerrainSceneHoldsItsBodiesUp) {
   std::unique_ptr<World> world =
       World::Load(std::string(TETCOSIM_SOURCE_DIR) + "/models/scenes/terrain.xml");
   const std::vector<World::GeomSummary> geoms = world->GeomsMetByShape();
-  ASSERT_EQ(geoms.size(), 3u);
+  ASSERT_EQ(geoms.size(), 2u);
   EXPECT_EQ(geoms[0].name, "ground");
   EXPECT_EQ(geoms[0].shape, "height field 41 x 41");
   EXPECT_EQ(geoms[1].name, "rock");
   EXPECT_EQ(geoms[1].shape.rfind("mesh: convex hull of ", 0), 0u) << geoms[1].shape;
-  EXPECT_EQ(geoms[2].shape, "ellipsoid");
+  ASSERT_EQ(world->made_proxies().size(), 1u);
+  EXPECT_EQ(world->made_proxies()[0].geom, "pebble");
   std::vector<double> start_z(world->num_deformables());
   for (int i = 0; i < world->num_deformables(); ++i) {
     start_z[i] = world->deformable(i).CenterOfMass().z();
@@ -511,18 +513,26 @@ TEST(GeomShape, PassageWidthIsTheSecondSmallestExtent) {
 
 // Which geoms get a proxy made for them: those narrower than the coarsest
 // gaps between a deformable's surface vertices (a block of 3 cells a
-// side: 4.7 cm, the cells' diagonals), that meet deformables and have no <rigidtet> (which a
-// mesh geom may have too: its convex hull). With autoproxy off, each is
-// warned of instead; a finer block makes none.
-TEST(GeomShape, ProxiesAreMadeForGeomsNarrowerThanTheVertexSpacing) {
+// side: 4.7 cm, the cells' diagonals), and round ones up to 8 times as
+// wide (spheres, ellipsoids, and capsules and cylinders up to 2 radii in
+// half-length; autoproxy "true", the default; "narrow": only the narrower), that
+// meet deformables and have no <rigidtet> (which a mesh geom may have too:
+// its convex hull). With autoproxy off, each narrower one is warned of
+// instead (a wider round one is not: it cannot pass through); a finer block
+// makes none.
+TEST(GeomShape, ProxiesAreMadeForGeomsNarrowerThanTheVertexSpacingAndRoundOnesNearIt) {
   TempDir dir("tetcosim_geom_shape");
-  auto load = [&](int resolution, bool auto_proxies) {
+  auto load = [&](int resolution, const std::string& auto_proxies) {
     std::string xml = R"(<mujoco>
   <asset><mesh name="pebble" vertex="0 0 0  0.01 0 0  0 0.01 0  0 0 0.01"/></asset>
   <worldbody>
     <geom name="floor" type="plane" size="1 1 0.1"/>
     <geom name="plate" type="box" size="0.2 0.2 0.001" pos="0 0 0.5"/>
     <geom name="big" type="sphere" size="0.03" pos="1 0 0.5"/>
+    <geom name="brick" type="box" size="0.03 0.03 0.03" pos="1 1 0.5"/>
+    <geom name="drum" type="cylinder" size="0.18 0.05" pos="1 2 0.5"/>
+    <geom name="boulder" type="sphere" size="0.19" pos="1 3 0.5"/>
+    <geom name="bar" type="capsule" size="0.03 0.07" pos="1 4 0.5"/>
     <geom name="off" type="sphere" size="0.01" pos="2 0 0.5" contype="2" conaffinity="2"/>
     <geom name="pebble" type="mesh" mesh="pebble" pos="3 0 0.5"/>
     <body name="rod" pos="4 0 0.5"><geom name="rod" type="capsule" size="0.01 0.2"/></body>
@@ -536,7 +546,7 @@ TEST(GeomShape, ProxiesAreMadeForGeomsNarrowerThanTheVertexSpacing) {
     <tetbody name="block" shape="box" size="0.05 0.05 0.05" resolution="CELLS" pos="0 0 0.05"/>
   </deformable>
 </mujoco>)";
-    xml.replace(xml.find("AUTO"), 4, auto_proxies ? "true" : "false");
+    xml.replace(xml.find("AUTO"), 4, auto_proxies);
     xml.replace(xml.find("CELLS"), 5, std::to_string(resolution));
     return World::Load(dir.Write("scene.xml", xml));
   };
@@ -550,14 +560,36 @@ TEST(GeomShape, ProxiesAreMadeForGeomsNarrowerThanTheVertexSpacing) {
     for (const std::string& warning : world.load_warnings()) all += warning + "\n";
     return all;
   };
-  std::unique_ptr<World> coarse = load(3, true);
-  ASSERT_EQ(names(*coarse), "pebble rod ");
-  EXPECT_EQ(coarse->num_proxies(), 4);  // given's, stone's, pebble's and rod's
-  EXPECT_NE(coarse->made_proxies()[1].why.find("0.02 m wide, less than the 0.0471 m gaps"),
+  // (the drum is 0.36 m wide, the boulder 0.38: 7.6 and 8.1 gaps; the
+  // bar is as wide as the big ball, but long: 2.3 radii in half-length)
+  std::unique_ptr<World> coarse = load(3, "true");
+  ASSERT_EQ(names(*coarse), "big drum pebble rod ");
+  EXPECT_EQ(coarse->num_proxies(), 6);  // given's, stone's and the four made
+  EXPECT_NE(
+      coarse->made_proxies()[0].why.find("round, 0.06 m wide, less than 8 times the 0.0471 m gaps"),
+      std::string::npos)
+      << coarse->made_proxies()[0].why;
+  // (a ball 6 cm across sinks 3 - sqrt(3^2 - 2.36^2) = 1.14 cm into a
+  // round gap 4.71 cm across)
+  EXPECT_NE(coarse->made_proxies()[0].why.find("sink up to 0.011 m"), std::string::npos)
+      << coarse->made_proxies()[0].why;
+  EXPECT_NE(coarse->made_proxies()[3].why.find("0.02 m wide, less than the 0.0471 m gaps"),
             std::string::npos)
-      << coarse->made_proxies()[1].why;
+      << coarse->made_proxies()[3].why;
   EXPECT_EQ(warnings(*coarse), "");
-  std::unique_ptr<World> off = load(3, false);
+  // a round geom's proxy: its fine surface coned to its centre (a level-3
+  // sphere's 1280 triangles; the drum's 12 cells across, its rim of 48
+  // segments: 2 x 2 x 12^2 triangles on its ends, 2 x 48 x 3 on its side,
+  // in 3 layers as long as its cells are wide); a narrow one's solid, half
+  // its width apart (the rod, 3 cells across and 0.4 m long: 6 x 3^2 x
+  // (60 + 2 x 2))
+  EXPECT_EQ(coarse->made_proxies()[0].num_tets, 1280);
+  EXPECT_EQ(coarse->made_proxies()[1].num_tets, 2 * 2 * 144 + 2 * 48 * 3);
+  EXPECT_EQ(coarse->made_proxies()[3].num_tets, 6 * 9 * 64);
+  std::unique_ptr<World> narrow = load(3, "narrow");
+  EXPECT_EQ(names(*narrow), "pebble rod ");
+  EXPECT_EQ(warnings(*narrow), "");
+  std::unique_ptr<World> off = load(3, "false");
   EXPECT_EQ(names(*off), "");
   EXPECT_EQ(off->num_proxies(), 2);
   const std::string off_warnings = warnings(*off);
@@ -565,9 +597,23 @@ TEST(GeomShape, ProxiesAreMadeForGeomsNarrowerThanTheVertexSpacing) {
             std::string::npos)
       << off_warnings;
   EXPECT_NE(off_warnings.find("geom 'pebble': 0.0"), std::string::npos) << off_warnings;
-  std::unique_ptr<World> fine = load(12, true);
+  EXPECT_EQ(off_warnings.find("big"), std::string::npos) << off_warnings;
+  // (gaps of 0.0074 m: 8 of them are 0.059 m, less than the big ball)
+  std::unique_ptr<World> fine = load(19, "true");
   EXPECT_EQ(names(*fine), "");
   EXPECT_EQ(warnings(*fine), "");
+  EXPECT_THROW(
+      {
+        try {
+          load(3, "round");
+        } catch (const Error& e) {
+          EXPECT_NE(std::string(e.what()).find("autoproxy must be true, narrow or false"),
+                    std::string::npos)
+              << e.what();
+          throw;
+        }
+      },
+      Error);
 }
 
 // Oracles for the mesh of a convex hull: its tetrahedra are positive

@@ -2795,8 +2795,9 @@ TEST(Commands, ProxiesMadeForNarrowGeomsAreListed) {
   const std::string why =
       "(0.012 m wide, less than the 0.0471 m gaps between the surface vertices of tetbody 'block'";
   const std::pair<std::string, std::string> cases[] = {
-      {"info " + scene, "geom         ball: a proxy made for it " + why + ")"},
+      {"info " + scene, "geom         ball: a proxy of 1280 tetrahedra made for it " + why + ")"},
       {"info --json " + scene, "\"why\": \"0.012 m wide, less than"},
+      {"info --json " + scene, "\"tetrahedra\": 1280"},
       {"check " + scene, "  geom ball: a proxy made for it " + why + ")"},
       {"run " + scene + " --steps 2 --out " + (dir.path() / "out").string(),
        "tetcosim: note: geom ball is given a proxy " + why + "; <contact autoproxy>)"},

@@ -248,25 +248,34 @@ TEST(Rolling, ABallWithTooLittleFrictionSlidesAsCoulombSaysAndSpinsUp) {
 
 // A rigid ball (a MuJoCo sphere, I = 2/5 m r^2) rolling down the slope on a
 // stiff slab whose surface vertices are 5 cm apart, half its width: met as
-// a geom, only at the slab's vertices, it sinks in between them and rolls
-// over them as over a bed of nails (measured: 35% of the rigid rate, 5/7 g
-// sin theta); given a fine <rigidtet> (a level-3 sphere), its proxy's
-// vertices meet the slab's tetrahedra and the slab's vertices its
-// tetrahedra, and it rolls at 93% (what the step's resistance and the
-// proxy's facets leave). The README's limitation, and its remedy.
+// a geom (<contact autoproxy="narrow">: it is wider than the gaps), only at
+// the slab's vertices, it sinks in between them and rolls over them as over
+// a bed of nails (measured: 35% of the rigid rate, 5/7 g sin theta); given
+// a proxy, made for it by default (autoproxy "true": round and narrower
+// than 8 gaps; its level-3 surface coned to its centre) or by a <rigidtet>
+// (the solid level-3 sphere), the proxy's vertices meet the slab's
+// tetrahedra and the slab's vertices its tetrahedra, and it rolls at 93%
+// (what the step's resistance and the proxy's facets leave; the two proxies
+// alike to 1e-3 of the rate).
 TEST(Rolling, ARigidBallRollsOverACoarseSlabsVerticesUnlessItHasAProxy) {
   const double rigid = 5.0 / 7.0 * kGravity * std::sin(kTheta);
-  for (const bool proxy : {false, true}) {
+  enum class Ball { kGeom, kMadeProxy, kRigidTet };
+  double made = 0.0, given = 0.0;
+  for (const Ball kind : {Ball::kGeom, Ball::kMadeProxy, Ball::kRigidTet}) {
+    const bool rigidtet = kind == Ball::kRigidTet;
     const std::string scene =
         "<mujoco><option timestep='0.002' " + TiltedGravity() +
         "/><worldbody><body name='anchor'/><body name='ball' pos='-0.5 0 0.0502'><freejoint/>"
         "<geom name='ball' type='sphere' size='0.05' density='1000' friction='0.5'" +
-        (proxy ? " contype='0' conaffinity='0'" : "") +
-        "/></body></worldbody><deformable><contact friction='0.5'/>" +
-        (proxy ? "<rigidtet body='ball' geom='ball' resolution='3'/>" : "") +
+        (rigidtet ? " contype='0' conaffinity='0'" : "") +
+        "/></body></worldbody><deformable><contact friction='0.5'" +
+        (kind == Ball::kGeom ? " autoproxy='narrow'" : "") + "/>" +
+        (rigidtet ? "<rigidtet body='ball' geom='ball' resolution='3'/>" : "") +
         PinnedSlab("40 12 2") + "</deformable></mujoco>";
     TempDir dir("tetcosim_ball");
     std::unique_ptr<World> world = World::Load(dir.Write("scene.xml", scene));
+    EXPECT_EQ(world->made_proxies().size(), kind == Ball::kMadeProxy ? 1u : 0u);
+    EXPECT_EQ(world->num_proxies(), kind == Ball::kGeom ? 0 : 1);
     const int ball = world->BodyId("ball");
     std::vector<double> times, speeds;
     for (int s = 1; s <= static_cast<int>(std::lround(kEnd / world->timestep())); ++s) {
@@ -277,15 +286,20 @@ TEST(Rolling, ARigidBallRollsOverACoarseSlabsVerticesUnlessItHasAProxy) {
       speeds.push_back(world->RigidBodyLinearVelocity(ball).x());
     }
     const double acceleration = FittedRate(times, speeds);
-    std::printf("%s: %.4f m/s^2, rigid %.4f\n", proxy ? "with a proxy" : "met as a geom",
+    std::printf("%s: %.4f m/s^2, rigid %.4f\n",
+                kind == Ball::kGeom        ? "met as a geom"
+                : kind == Ball::kMadeProxy ? "with the proxy made for it"
+                                           : "with a <rigidtet>",
                 acceleration, rigid);
-    if (proxy) {
+    if (kind == Ball::kGeom) {
+      EXPECT_LT(acceleration, 0.5 * rigid);
+    } else {
       EXPECT_GT(acceleration, 0.9 * rigid);
       EXPECT_LT(acceleration, rigid);
-    } else {
-      EXPECT_LT(acceleration, 0.5 * rigid);
+      (rigidtet ? given : made) = acceleration;
     }
   }
+  EXPECT_NEAR(made, given, 0.01 * rigid);
 }
 
 // Dropped 0.2 m on a floor, with neither contact damping nor Rayleigh

@@ -8,8 +8,10 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <numbers>
 #include <string>
 
 #include "mujoco_bridge/scenario.h"
@@ -22,7 +24,8 @@ namespace {
 // gaps between them 4.7 cm: the cells' diagonals), its top at z = 0.1, a
 // cell's middle right above the origin; each geom is 8 to 12 mm wide and
 // up to 3.2 cm long, so that it fits within a cell, or a 4 cm ball, and
-// placed (and turned) in its body's frame; the mesh is a 1 cm cube.
+// placed (and turned) in its body's frame, its lowest point 1 cm or more
+// above the block; the mesh is a 1 cm cube.
 struct SmallGeom {
   const char* name;
   const char* geom;    // its MJCF attributes
@@ -42,7 +45,8 @@ constexpr SmallGeom kSmallGeoms[] = {
 };
 constexpr double kTop = 0.1;
 
-std::string Scene(const SmallGeom& geom, bool auto_proxy) {
+// autoproxy: "true", "narrow" or "false"
+std::string Scene(const SmallGeom& geom, const std::string& auto_proxy) {
   return std::string(R"(<mujoco>
   <option timestep="0.001"/>
   <asset><mesh name="cube" vertex="-0.005 -0.005 -0.005  0.005 -0.005 -0.005  -0.005 0.005 -0.005
@@ -50,12 +54,13 @@ std::string Scene(const SmallGeom& geom, bool auto_proxy) {
     0.005 0.005 0.005"/></asset>
   <worldbody>
     <geom name="floor" type="plane" size="1 1 0.1"/>
-    <body name="drop" pos="0 0 0.15"><freejoint/><geom name="drop" density="300" pos="0 0 -0.02" )") +
-         geom.geom + R"(/></body>
+    <body name="drop" pos="0 0 0.15"><freejoint/><geom name="drop" density="300" pos="0 0 )") +
+         std::to_string(std::max(-0.02, geom.half_height - 0.04)) + "\" " + geom.geom +
+         R"(/></body>
   </worldbody>
   <deformable>
     <contact autoproxy=")" +
-         (auto_proxy ? "true" : "false") + R"("/>
+         auto_proxy + R"("/>
     <tetbody name="block" shape="box" size="0.05 0.05 0.05" resolution="3" pos="0 0 0.05"
              density="300" young="5e4"/>
   </deformable>
@@ -63,17 +68,18 @@ std::string Scene(const SmallGeom& geom, bool auto_proxy) {
 }
 
 struct Outcome {
-  double z = 0.0;      // the geom's centre at the end, m
-  double speed = 0.0;  // m/s
+  double z = 0.0;           // the geom's centre at the end, m
+  double speed = 0.0;       // m/s
+  double off_centre = 0.0;  // the centre's horizontal distance from the block's middle, m
   int made_proxies = 0;
   std::string warnings;
 };
 
-Outcome Drop(const SmallGeom& geom, bool auto_proxy) {
+Outcome Drop(const SmallGeom& geom, const std::string& auto_proxy, double seconds = 3.0) {
   TempDir dir("tetcosim_small_geom");
   Scenario scenario(dir.Write("drop.xml", Scene(geom, auto_proxy)));
   // (3 s: the 4 cm ball rolls about in its dent for 2 s before it settles)
-  EXPECT_TRUE(scenario.Run(3.0)) << scenario.message();
+  EXPECT_TRUE(scenario.Run(seconds)) << scenario.message();
   const World& world = scenario.world();
   const int body = world.BodyId("drop");
   Outcome outcome;
@@ -81,15 +87,19 @@ Outcome Drop(const SmallGeom& geom, bool auto_proxy) {
   outcome.speed = world.RigidBodyPointVelocity(body, world.RigidBodyCenterOfMass(body)).norm();
   outcome.made_proxies = static_cast<int>(world.made_proxies().size());
   for (const std::string& warning : world.load_warnings()) outcome.warnings += warning + "\n";
-  std::printf("%s, %s: centre at z = %.4f m, speed %.2g m/s\n", geom.name,
-              auto_proxy ? "proxy made" : "geom", outcome.z, outcome.speed);
+  outcome.off_centre = world.RigidBodyCenterOfMass(body).head<2>().norm();
+  std::printf(
+      "%s, autoproxy %s: centre at z = %.4f m, %.2g m into the block, %.2g m off its middle, "
+      "speed %.2g m/s\n",
+      geom.name, auto_proxy.c_str(), outcome.z, kTop + geom.half_height - outcome.z,
+      outcome.off_centre, outcome.speed);
   return outcome;
 }
 
 TEST(SmallGeom, RestsOnACoarseBlockThroughTheProxyMadeForIt) {
   for (const SmallGeom& geom : kSmallGeoms) {
     SCOPED_TRACE(geom.name);
-    const Outcome outcome = Drop(geom, /*auto_proxy=*/true);
+    const Outcome outcome = Drop(geom, "true");
     EXPECT_EQ(outcome.made_proxies, 1);
     EXPECT_EQ(outcome.warnings, "");
     // on the block, at most 2 mm into it, and at rest
@@ -102,7 +112,7 @@ TEST(SmallGeom, RestsOnACoarseBlockThroughTheProxyMadeForIt) {
 TEST(SmallGeom, MetAsAGeomItFallsThroughTheBlockAndIsWarnedOf) {
   for (const SmallGeom& sphere : {kSmallGeoms[0], kSmallGeoms[6]}) {
     SCOPED_TRACE(sphere.name);
-    const Outcome outcome = Drop(sphere, /*auto_proxy=*/false);
+    const Outcome outcome = Drop(sphere, "false");
     EXPECT_EQ(outcome.made_proxies, 0);
     EXPECT_NE(outcome.warnings.find("geom 'drop': 0."), std::string::npos) << outcome.warnings;
     EXPECT_NE(outcome.warnings.find(" m wide, less than the 0.0471 m gaps between the surface "
@@ -111,6 +121,48 @@ TEST(SmallGeom, MetAsAGeomItFallsThroughTheBlockAndIsWarnedOf) {
         << outcome.warnings;
     // through the block, down to the floor under it
     EXPECT_LT(outcome.z, sphere.half_height + 0.002);
+  }
+}
+
+// Round geoms wider than the gaps (4.7 cm), but less than 8 times: a 6 cm
+// and an 8 cm ball, and a capsule 6 cm across lying down. Met as geoms
+// (autoproxy "narrow"), they sink in between the block's vertices: a ball
+// by at least the geometry's sag, R - sqrt(R^2 - r^2) with r = 2.36 cm from
+// the middle of a cell to its corners (6 cm: 11.5 mm; 8 cm: 7.7 mm; and by
+// at most 2 mm more, its contacts' depth and the block's give), the capsule
+// by more than 4 mm. Given the proxy made for them by default (round), they
+// rest on top, at most 2.5 mm in, after 1.5 s. (Not at rest: a ball on so
+// coarse a block meets flat cells that tilt towards the vertex it presses
+// most, and it rolls slowly away from a cell's middle, as it did not while
+// it sat sunk among the cell's corners: the 8 cm ball 1.8 cm in 1.6 s, then
+// off the block's side at 4.4 s.)
+TEST(SmallGeom, WiderRoundGeomsRestOnTheBlockThroughTheProxyMadeForThem) {
+  constexpr SmallGeom kWide[] = {
+      {"6 cm ball", R"(type="sphere" size="0.03")", 0.03},
+      {"8 cm ball", R"(type="sphere" size="0.04")", 0.04},
+      {"6 cm capsule", R"(type="capsule" size="0.03 0.03" euler="0 90 0")", 0.03},
+  };
+  constexpr double kCorner = 0.05 / 3.0 * std::numbers::sqrt2;  // (a cell's half-diagonal)
+  for (const SmallGeom& geom : kWide) {
+    SCOPED_TRACE(geom.name);
+    const Outcome made = Drop(geom, "true", 1.5);
+    EXPECT_EQ(made.made_proxies, 1);
+    EXPECT_EQ(made.warnings, "");
+    EXPECT_GT(made.z, kTop + geom.half_height - 0.0025);
+    EXPECT_LT(made.z, kTop + geom.half_height + 0.001);
+    EXPECT_LT(made.off_centre, 0.03);
+    const Outcome met = Drop(geom, "narrow", 1.5);
+    EXPECT_EQ(met.made_proxies, 0);
+    EXPECT_EQ(met.warnings, "");
+    const double sink = kTop + geom.half_height - met.z;
+    if (geom.geom[6] == 's') {  // (a ball)
+      const double r = geom.half_height;
+      const double sag = r - std::sqrt(r * r - kCorner * kCorner);
+      EXPECT_GT(sink, sag);
+      EXPECT_LT(sink, sag + 0.002);
+    } else {
+      EXPECT_GT(sink, 0.004);
+    }
   }
 }
 
