@@ -1,5 +1,6 @@
 #include "mesh/generators.h"
 
+#include <algorithm>
 #include <array>
 #include <charconv>
 #include <cmath>
@@ -8,6 +9,8 @@
 #include <map>
 #include <numbers>
 #include <sstream>
+#include <utility>
+#include <vector>
 
 #include "mesh/error.h"
 
@@ -358,6 +361,109 @@ RawMesh ConeToPoint(const TetMesh& solid, const Eigen::Vector3d& apex) {
     out.tets.push_back({a, c, b, centre});
   }
   return out.Finish("the surface of " + solid.source() + " coned to a point");
+}
+
+RawMesh ConeToAxis(const TetMesh& solid, double half_length) {
+  const Positions& x = solid.positions();
+  const Triangles& surface = solid.surface();
+  const double side_limit = half_length * (1.0 + 1e-12);
+  // the rings' heights, ascending, and whether there are caps beyond them
+  std::vector<double> levels;
+  double bottom = 0.0, top = 0.0;
+  for (int v : solid.surface_vertices()) {
+    const double z = x(v, 2);
+    bottom = std::min(bottom, z);
+    top = std::max(top, z);
+    if (std::abs(z) <= side_limit) levels.push_back(z);
+  }
+  std::sort(levels.begin(), levels.end());
+  levels.erase(std::unique(levels.begin(), levels.end()), levels.end());
+  const bool caps = bottom < levels.front() && top > levels.back();
+  const int num_levels = static_cast<int>(levels.size());
+  if (num_levels < (caps ? 1 : 2)) {
+    throw Error(solid.source() + ": no rings along the axis to cone the surface to");
+  }
+  // slabs: 0 .. num_levels - 2 between the levels, and with caps the bottom
+  // cap (num_levels - 1) and the top one (num_levels)
+  const int num_between = num_levels - 1;
+  const int bottom_cap = num_between, top_cap = num_between + 1;
+  auto slab_of = [&](double z) {
+    if (caps && z < levels.front()) return bottom_cap;
+    if (caps && z > levels.back()) return top_cap;
+    const auto above = std::upper_bound(levels.begin(), levels.end(), z);
+    return std::clamp(static_cast<int>(above - levels.begin()) - 1, 0, num_between - 1);
+  };
+  MeshBuilder out;
+  std::vector<int> index(solid.num_vertices(), -1);
+  for (int v : solid.surface_vertices()) {
+    index[v] = static_cast<int>(out.points.size());
+    out.points.push_back(x.row(v).transpose());
+  }
+  std::vector<int> apex(num_between + (caps ? 2 : 0));
+  for (int s = 0; s < num_between; ++s) {
+    apex[s] = static_cast<int>(out.points.size());
+    out.points.emplace_back(0.0, 0.0, 0.5 * (levels[s] + levels[s + 1]));
+  }
+  if (caps) {
+    apex[bottom_cap] = static_cast<int>(out.points.size());
+    out.points.emplace_back(0.0, 0.0, 0.5 * (bottom + levels.front()));
+    apex[top_cap] = static_cast<int>(out.points.size());
+    out.points.emplace_back(0.0, 0.0, 0.5 * (top + levels.back()));
+  }
+  auto add = [&](int a, int b, int c, int d, const char* what, Eigen::Index which) {
+    if (!(SignedTetVolume(out.points[a], out.points[b], out.points[c], out.points[d]) > 0.0)) {
+      throw Error(solid.source() + ": " + what + " " + std::to_string(which) +
+                  " does not face away from the point it is coned to; the mesh must be a "
+                  "cylinder's or a capsule's along z");
+    }
+    out.tets.push_back({a, b, c, d});
+  };
+  // each surface triangle to its slab's point, and each edge of a ring
+  // between two slabs (both ends at its height: the rings' edges, on the
+  // side; a cylinder's end discs are not between slabs), once
+  std::vector<std::array<int, 3>> ring_edges;  // (level, a, b), a < b
+  for (Eigen::Index f = 0; f < surface.rows(); ++f) {
+    const int a = surface(f, 0), b = surface(f, 1), c = surface(f, 2);
+    const double centre_z = (x(a, 2) + x(b, 2) + x(c, 2)) / 3.0;
+    add(index[a], index[c], index[b], apex[slab_of(centre_z)], "surface triangle", f);
+    for (const auto& [p, q] : {std::pair{a, b}, std::pair{b, c}, std::pair{c, a}}) {
+      if (x(p, 2) != x(q, 2) || std::abs(x(p, 2)) > side_limit) continue;
+      const int level = static_cast<int>(std::lower_bound(levels.begin(), levels.end(), x(p, 2)) -
+                                         levels.begin());
+      if (!caps && (level == 0 || level == num_levels - 1)) continue;
+      ring_edges.push_back({level, std::min(p, q), std::max(p, q)});
+    }
+  }
+  std::sort(ring_edges.begin(), ring_edges.end());
+  ring_edges.erase(std::unique(ring_edges.begin(), ring_edges.end()), ring_edges.end());
+  std::vector<int> axis(num_levels, -1);  // the axis's point at each fanned level
+  for (const auto& [level, a, b] : ring_edges) {
+    if (axis[level] < 0) {
+      axis[level] = static_cast<int>(out.points.size());
+      out.points.emplace_back(0.0, 0.0, levels[level]);
+    }
+    const int below = level > 0 ? apex[level - 1] : apex[bottom_cap];
+    const int above = level < num_between ? apex[level] : apex[top_cap];
+    // (the fan's triangle (axis, a, b) faces one way to one slab's point,
+    // the other way to the other's)
+    const bool up = SignedTetVolume(out.points[axis[level]], out.points[index[a]],
+                                    out.points[index[b]], out.points[above]) > 0.0;
+    const int first = up ? index[a] : index[b], second = up ? index[b] : index[a];
+    add(axis[level], first, second, above, "ring edge at level", level);
+    add(axis[level], second, first, below, "ring edge at level", level);
+  }
+  // (a mesh whose rings are not where a cylinder's or a capsule's are
+  // could leave gaps between its slabs)
+  double volume = 0.0;
+  for (const auto& [a, b, c, d] : out.tets) {
+    volume += SignedTetVolume(out.points[a], out.points[b], out.points[c], out.points[d]);
+  }
+  if (!(std::abs(volume - solid.total_volume()) <= 1e-9 * solid.total_volume())) {
+    throw Error(solid.source() + ": coned to its axis, it holds " + std::to_string(volume) +
+                " m^3, not its " + std::to_string(solid.total_volume()) +
+                "; the mesh must be a cylinder's or a capsule's along z");
+  }
+  return out.Finish("the surface of " + solid.source() + " coned to its axis");
 }
 
 RawMesh MakeTorus(double major_radius, double minor_radius, int resolution) {

@@ -34,6 +34,17 @@ RawMesh MakeTorus(double major_radius, double minor_radius, int resolution);
 // inside). Throws Error when a triangle does not face away from the apex.
 RawMesh ConeToPoint(const TetMesh& solid, const Eigen::Vector3d& apex);
 
+// The same for a mesh of MakeCylinder or MakeCapsule (axis z), whose
+// surface, long or short, is cut at the heights of its side's rings (its
+// surface vertices' heights up to half_length) into slabs: each slab's
+// surface triangles coned to a point on the axis inside it, and each ring
+// between two slabs fanned from the axis (two tetrahedra a ring edge, one
+// to each slab's point); a capsule's caps (beyond half_length) are slabs of
+// their own. No tetrahedron reaches farther than a slab, however long the
+// body. Throws Error when a triangle does not face away from its slab's
+// point (not such a mesh).
+RawMesh ConeToAxis(const TetMesh& solid, double half_length);
+
 // True when text looks like a generator spec "shape:key=value:..." with a
 // known shape name.
 bool IsShapeSpec(const std::string& text);

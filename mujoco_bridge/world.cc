@@ -91,9 +91,8 @@ constexpr double kBytesPerProxyTet = 600.0;
 // volume is warned of: deformables meet its hull.
 constexpr double kConvexHullMargin = 1.02;
 
-// Round geoms (spheres, ellipsoids, and capsules and cylinders up to
-// kMaxConedHalfLength radii in half-length) narrower than this many times
-// the gaps between a deformable's surface vertices get a proxy (<contact
+// Round geoms (spheres, ellipsoids, capsules and cylinders) narrower than
+// this many times the gaps between a deformable's surface vertices get a proxy (<contact
 // autoproxy>), as the narrower geoms of every kind do: met as a geom, one
 // sinks in between the vertices and rolls over them as over a bed of
 // nails. Measured (tests/scenarios/ball_test.cc), a 10 cm rigid ball
@@ -110,15 +109,17 @@ constexpr double kRoundProxyWidths = 8.0;
 // 0.87 of the rigid rate.
 constexpr double kRoundProxyCellsAcross = 12.0;
 // A rigid proxy needs a fine surface, not a fine inside: a round geom's
-// made proxy is its surface coned to its centre (ConeToPoint: a level-3
-// sphere in 1280 tetrahedra, not 10,240), which is why a capsule or a
-// cylinder longer than this many radii in half-length is not taken as
-// round (coned, its tetrahedra would reach from end to end; solid, a long
-// rod 12 cells across would take 30k to 100k). Measured on the terrain
+// made proxy is its surface coned to its centre (a sphere or an ellipsoid,
+// ConeToPoint: a level-3 sphere in 1280 tetrahedra, not 10,240) or to its
+// axis slab by slab (a capsule or a cylinder, ConeToAxis: no tetrahedron
+// longer than a slab however long the body). Measured on the terrain
 // scene, whose pebble (an ellipsoid) is given a proxy: the collision phase
 // took 0.40 ms a step with the solid level-3 mesh, 0.08 with the coned one
-// and with a solid level-2 one (1280 tetrahedra each), 0.02 with none.
-constexpr double kMaxConedHalfLength = 2.0;
+// and with a solid level-2 one (1280 tetrahedra each), 0.02 with none. A
+// capsule or a cylinder is made fewer cells across (at least 3) while its
+// coned mesh would take more than this many tetrahedra (its layers are as
+// thick as its cells are wide: a rod 40 radii long is made 5 across).
+constexpr double kMaxConedProxyTets = 20000.0;
 
 // A geom is passed over for a deformable whose box lies farther than this
 // (m) beyond the geom's bounding sphere or above its plane: room for the
@@ -346,20 +347,19 @@ Eigen::Isometry3d GeomInBody(const mjModel* m, int geom) {
   return X_BG;
 }
 
-// Whether a geom is round (kRoundProxyWidths): a sphere, an ellipsoid, or a
-// capsule or a cylinder up to kMaxConedHalfLength radii in half-length
-bool IsRound(const mjModel* m, int geom) {
-  const double* size = m->geom_size + 3 * geom;
-  switch (m->geom_type[geom]) {
-    case mjGEOM_SPHERE:
-    case mjGEOM_ELLIPSOID:
-      return true;
-    case mjGEOM_CAPSULE:
-    case mjGEOM_CYLINDER:
-      return size[1] <= kMaxConedHalfLength * size[0];
-    default:
-      return false;
-  }
+// Whether a geom's type is round (kRoundProxyWidths)
+bool IsRound(int type) {
+  return type == mjGEOM_SPHERE || type == mjGEOM_ELLIPSOID || type == mjGEOM_CAPSULE ||
+         type == mjGEOM_CYLINDER;
+}
+
+// About how many tetrahedra ConeToAxis makes of a capsule or a cylinder
+// `cells` across (radius, half-length): its side's layers are as thick as
+// its cells are wide, each with 8 n triangles and a ring of 4 n edges (two
+// tetrahedra each); its ends, at most 12 n^2 (a capsule's caps)
+double ConedRoundTets(double radius, double half_length, int cells) {
+  const double layers = std::max(1.0, std::round(half_length * cells / radius));
+  return 16.0 * cells * (layers + 1.0) + 12.0 * cells * cells;
 }
 
 // The proxy made without a <rigidtet> for a geom that is narrow or round
@@ -367,10 +367,10 @@ bool IsRound(const mjModel* m, int geom) {
 // cells, up to 256 along an axis; a mesh's convex hull, its faces split at
 // their longest edges, up to 20,000 faces; a sphere or an ellipsoid at
 // level 1 to 3 of MakeSphere, whose edges are 1.05 r / 2^level for a
-// radius r; a capsule or a cylinder 3 to 64 cells across, and as long
-// along it), its surface coned to its centre when it is round (IsRound),
-// else solid. Null for a plane or a height field. Throws Error for a mesh
-// without a hull.
+// radius r; a capsule or a cylinder 3 to 64 cells across, fewer while
+// kMaxConedProxyTets asks, and as long along it), a round one's surface
+// coned to its centre or its axis. Null for a plane or a height field.
+// Throws Error for a mesh without a hull.
 std::optional<RawMesh> MadeProxyMesh(const mjModel* m, int geom, double spacing, long line,
                                      const std::string& path) {
   const double* size = m->geom_size + 3 * geom;
@@ -396,9 +396,11 @@ std::optional<RawMesh> MadeProxyMesh(const mjModel* m, int geom, double spacing,
     }
     case mjGEOM_CAPSULE:
     case mjGEOM_CYLINDER: {
-      RawMesh solid = GeomMesh(m, geom, cells(2.0 * size[0], 3.0, 64.0), line, path);
-      if (!IsRound(m, geom)) return solid;
-      return ConeToPoint(TetMesh::Build(std::move(solid)), Eigen::Vector3d::Zero());
+      int across = cells(2.0 * size[0], 3.0, 64.0);
+      while (across > 3 && ConedRoundTets(size[0], size[1], across) > kMaxConedProxyTets) {
+        --across;
+      }
+      return ConeToAxis(TetMesh::Build(GeomMesh(m, geom, across, line, path)), size[1]);
     }
     default:
       return std::nullopt;
@@ -943,7 +945,7 @@ std::unique_ptr<World> World::Load(const std::string& scene_path, const WorldOpt
     if (!(m->geom_contype[g] & 1) && !(m->geom_conaffinity[g] & 1)) continue;
     const std::string name = GeomName(m, g);
     const double width = GeomPassageWidth(m, g);
-    const bool round = IsRound(m, g);
+    const bool round = IsRound(m->geom_type[g]);
     const ProxyReason reason = ProxyReasonOf(round, width, gap, coarsest);
     const bool wanted = reason.narrow ? scene.auto_proxies != AutoProxies::kNone
                                       : scene.auto_proxies == AutoProxies::kNarrowAndRound;

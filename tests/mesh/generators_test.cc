@@ -8,6 +8,7 @@
 #include <numbers>
 #include <random>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "mesh/error.h"
@@ -126,13 +127,57 @@ bool InTet(const TetMesh& mesh, int t, const Eigen::Vector3d& p, double toleranc
   return true;
 }
 
+// Oracles for a mesh of the same solid as `solid` (ConeToPoint,
+// ConeToAxis): positive tetrahedra, the same surface (each triangle's
+// corners where the solid's are), the same volume to rounding, and the same
+// points inside (random points, brute force over both meshes' tetrahedra:
+// inside one just when inside the other, but within 1e-9 of the surface).
+void ExpectSameSolid(const TetMesh& solid, const TetMesh& coned) {
+  EXPECT_EQ(coned.num_flipped(), 0);
+  EXPECT_TRUE(coned.warnings().empty());
+  EXPECT_TRUE(IsClosedOrientedSurface(coned));
+  EXPECT_NEAR(coned.total_volume(), solid.total_volume(), 1e-12 * solid.total_volume());
+  // the surfaces' triangles as sorted corner positions, sorted
+  auto triangles = [](const TetMesh& mesh) {
+    std::vector<std::array<std::array<double, 3>, 3>> all;
+    for (Eigen::Index f = 0; f < mesh.surface().rows(); ++f) {
+      std::array<std::array<double, 3>, 3> corners;
+      for (int k = 0; k < 3; ++k) {
+        const auto p = mesh.positions().row(mesh.surface()(f, k));
+        corners[k] = {p.x(), p.y(), p.z()};
+      }
+      std::sort(corners.begin(), corners.end());
+      all.push_back(corners);
+    }
+    std::sort(all.begin(), all.end());
+    return all;
+  };
+  EXPECT_EQ(triangles(coned), triangles(solid));
+  std::mt19937 random(7);
+  const Eigen::Vector3d lo = solid.bbox_min(), hi = solid.bbox_max();
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  int inside = 0;
+  for (int i = 0; i < 400; ++i) {
+    const Eigen::Vector3d p =
+        lo + (hi - lo).cwiseProduct(Eigen::Vector3d(unit(random), unit(random), unit(random)));
+    auto in = [&](const TetMesh& mesh, double tolerance) {
+      for (int t = 0; t < mesh.num_tets(); ++t) {
+        if (InTet(mesh, t, p, tolerance)) return true;
+      }
+      return false;
+    };
+    // (a point within rounding of the surface may fall either way)
+    if (in(solid, -1e-9) != in(solid, 1e-9)) continue;
+    const bool in_solid = in(solid, 0.0);
+    inside += in_solid;
+    EXPECT_EQ(in(coned, 1e-12), in_solid) << p.transpose();
+  }
+  EXPECT_GT(inside, 100);
+}
+
 // A convex solid's surface coned to a point inside it (the made proxies of
-// round geoms): one positive tetrahedron per surface triangle, the same
-// surface (each triangle's corners where the solid's are), the same volume
-// to rounding, and the same points inside (random points, brute force over
-// both meshes' tetrahedra: inside one just when inside the other, but
-// within 1e-9 of the surface); a surface not seen whole from the point (a
-// torus's, from its centre) is an error.
+// balls): one tetrahedron per surface triangle, the same solid; a surface
+// not seen whole from the point (a torus's, from its centre) is an error.
 TEST(Generators, ASurfaceConedToAPointFillsTheSameSolid) {
   for (const char* spec : {"sphere:size=0.05:res=3", "capsule:size=0.1,0.1:res=12",
                            "cylinder:size=0.1,0.02:res=6", "box:size=0.1,0.2,0.3:res=3,4,5"}) {
@@ -141,46 +186,7 @@ TEST(Generators, ASurfaceConedToAPointFillsTheSameSolid) {
     const TetMesh coned = TetMesh::Build(ConeToPoint(solid, Eigen::Vector3d(0.001, -0.002, 0.003)));
     EXPECT_EQ(coned.num_tets(), solid.surface().rows());
     EXPECT_EQ(coned.num_vertices(), static_cast<int>(solid.surface_vertices().size()) + 1);
-    EXPECT_EQ(coned.num_flipped(), 0);
-    EXPECT_TRUE(coned.warnings().empty());
-    EXPECT_TRUE(IsClosedOrientedSurface(coned));
-    EXPECT_NEAR(coned.total_volume(), solid.total_volume(), 1e-12 * solid.total_volume());
-    // the surfaces' triangles as sorted corner positions, sorted
-    auto triangles = [](const TetMesh& mesh) {
-      std::vector<std::array<std::array<double, 3>, 3>> all;
-      for (Eigen::Index f = 0; f < mesh.surface().rows(); ++f) {
-        std::array<std::array<double, 3>, 3> corners;
-        for (int k = 0; k < 3; ++k) {
-          const auto p = mesh.positions().row(mesh.surface()(f, k));
-          corners[k] = {p.x(), p.y(), p.z()};
-        }
-        std::sort(corners.begin(), corners.end());
-        all.push_back(corners);
-      }
-      std::sort(all.begin(), all.end());
-      return all;
-    };
-    EXPECT_EQ(triangles(coned), triangles(solid));
-    std::mt19937 random(7);
-    const Eigen::Vector3d lo = solid.bbox_min(), hi = solid.bbox_max();
-    std::uniform_real_distribution<double> unit(0.0, 1.0);
-    int inside = 0;
-    for (int i = 0; i < 400; ++i) {
-      const Eigen::Vector3d p =
-          lo + (hi - lo).cwiseProduct(Eigen::Vector3d(unit(random), unit(random), unit(random)));
-      auto in = [&](const TetMesh& mesh, double tolerance) {
-        for (int t = 0; t < mesh.num_tets(); ++t) {
-          if (InTet(mesh, t, p, tolerance)) return true;
-        }
-        return false;
-      };
-      // (a point within rounding of the surface may fall either way)
-      if (in(solid, -1e-9) != in(solid, 1e-9)) continue;
-      const bool in_solid = in(solid, 0.0);
-      inside += in_solid;
-      EXPECT_EQ(in(coned, 1e-12), in_solid) << p.transpose();
-    }
-    EXPECT_GT(inside, 100);
+    ExpectSameSolid(solid, coned);
   }
   const TetMesh torus = TetMesh::Build(MakeShape("torus:size=0.1,0.03:res=2"));
   try {
@@ -189,6 +195,60 @@ TEST(Generators, ASurfaceConedToAPointFillsTheSameSolid) {
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("does not face away from the point"), std::string::npos)
         << e.what();
+  }
+}
+
+// A capsule's or a cylinder's surface coned to its axis slab by slab (the
+// made proxies of capsules and cylinders): the same solid, long or short,
+// with no tetrahedron longer than a slab (its layers are 2 r / n thick; a
+// capsule's caps, r); a mesh that is not such a body is an error: a
+// torus's (its inner side faces the axis), a sphere's (its rings, taken
+// below a "half-length" within it, are not a cylinder's: its slabs do not
+// meet, and hold less than the sphere).
+TEST(Generators, ACapsulesOrCylindersSurfaceConedToItsAxisFillsTheSameSolid) {
+  struct Case {
+    const char* spec;
+    double half_length;
+    double longest;  // the longest a tetrahedron's edge may be
+  };
+  // (a slab's tet reaches from the axis to the side and across the slab:
+  // sqrt(r^2 + (2 r / n)^2 + ...) <= sqrt(2) r for these; a cap's from its
+  // point, r / 2 beyond the ring, to the cap's far end or the ring: r
+  // sqrt(5) / 2 + ...)
+  const Case cases[] = {
+      {"capsule:size=0.1,0.1:res=12", 0.1, 0.15},      {"capsule:size=0.01,0.2:res=6", 0.2, 0.015},
+      {"capsule:size=0.1,0.0001:res=4", 0.0001, 0.15}, {"cylinder:size=0.1,0.02:res=6", 0.02, 0.15},
+      {"cylinder:size=0.02,0.3:res=5", 0.3, 0.03},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.spec);
+    const TetMesh solid = TetMesh::Build(MakeShape(c.spec));
+    const TetMesh coned = TetMesh::Build(ConeToAxis(solid, c.half_length));
+    ExpectSameSolid(solid, coned);
+    double longest = 0.0;
+    for (Eigen::Index e = 0; e < coned.edges().rows(); ++e) {
+      longest = std::max(longest, (coned.positions().row(coned.edges()(e, 0)) -
+                                   coned.positions().row(coned.edges()(e, 1)))
+                                      .norm());
+    }
+    EXPECT_LT(longest, c.longest);
+  }
+  const std::pair<const char*, const char*> wrong[] = {
+      {"torus:size=0.1,0.03:res=2", "does not face away from the point it is coned to"},
+      {"sphere:size=0.05:res=2", "coned to its axis, it holds"},
+  };
+  for (const auto& [spec, what] : wrong) {
+    SCOPED_TRACE(spec);
+    const TetMesh mesh = TetMesh::Build(MakeShape(spec));
+    try {
+      ConeToAxis(mesh, 0.049);
+      ADD_FAILURE() << "no error";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(what), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("the mesh must be a cylinder's or a capsule's"),
+                std::string::npos)
+          << e.what();
+    }
   }
 }
 

@@ -514,12 +514,12 @@ TEST(GeomShape, PassageWidthIsTheSecondSmallestExtent) {
 // Which geoms get a proxy made for them: those narrower than the coarsest
 // gaps between a deformable's surface vertices (a block of 3 cells a
 // side: 4.7 cm, the cells' diagonals), and round ones up to 8 times as
-// wide (spheres, ellipsoids, and capsules and cylinders up to 2 radii in
-// half-length; autoproxy "true", the default; "narrow": only the narrower), that
+// wide (spheres, ellipsoids, capsules and cylinders; autoproxy "true", the
+// default; "narrow": only the narrower), that
 // meet deformables and have no <rigidtet> (which a mesh geom may have too:
 // its convex hull). With autoproxy off, each narrower one is warned of
 // instead (a wider round one is not: it cannot pass through); a finer block
-// makes none.
+// makes fewer.
 TEST(GeomShape, ProxiesAreMadeForGeomsNarrowerThanTheVertexSpacingAndRoundOnesNearIt) {
   TempDir dir("tetcosim_geom_shape");
   auto load = [&](int resolution, const std::string& auto_proxies) {
@@ -561,10 +561,10 @@ TEST(GeomShape, ProxiesAreMadeForGeomsNarrowerThanTheVertexSpacingAndRoundOnesNe
     return all;
   };
   // (the drum is 0.36 m wide, the boulder 0.38: 7.6 and 8.1 gaps; the
-  // bar is as wide as the big ball, but long: 2.3 radii in half-length)
+  // bar is as wide as the big ball, and longer)
   std::unique_ptr<World> coarse = load(3, "true");
-  ASSERT_EQ(names(*coarse), "big drum pebble rod ");
-  EXPECT_EQ(coarse->num_proxies(), 6);  // given's, stone's and the four made
+  ASSERT_EQ(names(*coarse), "big drum bar pebble rod ");
+  EXPECT_EQ(coarse->num_proxies(), 7);  // given's, stone's and the five made
   EXPECT_NE(
       coarse->made_proxies()[0].why.find("round, 0.06 m wide, less than 8 times the 0.0471 m gaps"),
       std::string::npos)
@@ -573,19 +573,26 @@ TEST(GeomShape, ProxiesAreMadeForGeomsNarrowerThanTheVertexSpacingAndRoundOnesNe
   // round gap 4.71 cm across)
   EXPECT_NE(coarse->made_proxies()[0].why.find("sink up to 0.011 m"), std::string::npos)
       << coarse->made_proxies()[0].why;
-  EXPECT_NE(coarse->made_proxies()[3].why.find("0.02 m wide, less than the 0.0471 m gaps"),
+  EXPECT_NE(coarse->made_proxies()[4].why.find("0.02 m wide, less than the 0.0471 m gaps"),
             std::string::npos)
-      << coarse->made_proxies()[3].why;
+      << coarse->made_proxies()[4].why;
   EXPECT_EQ(warnings(*coarse), "");
-  // a round geom's proxy: its fine surface coned to its centre (a level-3
-  // sphere's 1280 triangles; the drum's 12 cells across, its rim of 48
-  // segments: 2 x 2 x 12^2 triangles on its ends, 2 x 48 x 3 on its side,
-  // in 3 layers as long as its cells are wide); a narrow one's solid, half
-  // its width apart (the rod, 3 cells across and 0.4 m long: 6 x 3^2 x
-  // (60 + 2 x 2))
+  // a round geom's proxy: its fine surface coned to its centre (the big
+  // ball: a level-3 sphere's 1280 triangles) or its axis, slab by slab (12
+  // cells across: a rim of 4 n = 48 segments; layers as thick as a cell is
+  // wide, each with 8 n side triangles and, between two slabs, a ring of
+  // 4 n edges, two tetrahedra each; the drum's ends 2 n^2 triangles each, 3
+  // layers; the bar's 28 layers, its caps 2 n^2 + 8 n c triangles each, c =
+  // 6 layers of cells; the rod, 0.4 m long, 7 cells across and 140 layers,
+  // c = 4, where 8 would take more than 20,000)
+  auto coned = [](int n, int layers, int rings, int ends) {
+    return 8 * n * layers + 8 * n * rings + ends;
+  };
   EXPECT_EQ(coarse->made_proxies()[0].num_tets, 1280);
-  EXPECT_EQ(coarse->made_proxies()[1].num_tets, 2 * 2 * 144 + 2 * 48 * 3);
-  EXPECT_EQ(coarse->made_proxies()[3].num_tets, 6 * 9 * 64);
+  EXPECT_EQ(coarse->made_proxies()[1].num_tets, coned(12, 3, 2, 2 * 2 * 144));
+  EXPECT_EQ(coarse->made_proxies()[2].num_tets, coned(12, 28, 29, 2 * (2 * 144 + 8 * 12 * 6)));
+  EXPECT_EQ(coarse->made_proxies()[4].num_tets, coned(7, 140, 141, 2 * (2 * 49 + 8 * 7 * 4)));
+  EXPECT_LE(coarse->made_proxies()[4].num_tets, 20000);
   std::unique_ptr<World> narrow = load(3, "narrow");
   EXPECT_EQ(names(*narrow), "pebble rod ");
   EXPECT_EQ(warnings(*narrow), "");
@@ -598,9 +605,10 @@ TEST(GeomShape, ProxiesAreMadeForGeomsNarrowerThanTheVertexSpacingAndRoundOnesNe
       << off_warnings;
   EXPECT_NE(off_warnings.find("geom 'pebble': 0.0"), std::string::npos) << off_warnings;
   EXPECT_EQ(off_warnings.find("big"), std::string::npos) << off_warnings;
-  // (gaps of 0.0074 m: 8 of them are 0.059 m, less than the big ball)
+  // (gaps of 0.0074 m: 8 of them are 0.059 m, less than the big ball and
+  // the bar, more than the rod)
   std::unique_ptr<World> fine = load(19, "true");
-  EXPECT_EQ(names(*fine), "");
+  EXPECT_EQ(names(*fine), "rod ");
   EXPECT_EQ(warnings(*fine), "");
   EXPECT_THROW(
       {
