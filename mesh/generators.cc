@@ -378,10 +378,12 @@ RawMesh ConeToAxis(const TetMesh& solid, double half_length) {
   }
   std::sort(levels.begin(), levels.end());
   levels.erase(std::unique(levels.begin(), levels.end()), levels.end());
-  const bool caps = bottom < levels.front() && top > levels.back();
   const int num_levels = static_cast<int>(levels.size());
+  const bool caps = num_levels > 0 && bottom < levels.front() && top > levels.back();
   if (num_levels < (caps ? 1 : 2)) {
-    throw Error(solid.source() + ": no rings along the axis to cone the surface to");
+    throw Error(solid.source() + ": no rings along the axis within the half-length " +
+                std::to_string(half_length) + " m to cone the surface to; the mesh must be a " +
+                "cylinder's or a capsule's along z");
   }
   // slabs: 0 .. num_levels - 2 between the levels, and with caps the bottom
   // cap (num_levels - 1) and the top one (num_levels)

@@ -41,8 +41,9 @@ RawMesh ConeToPoint(const TetMesh& solid, const Eigen::Vector3d& apex);
 // between two slabs fanned from the axis (two tetrahedra a ring edge, one
 // to each slab's point); a capsule's caps (beyond half_length) are slabs of
 // their own. No tetrahedron reaches farther than a slab, however long the
-// body. Throws Error when a triangle does not face away from its slab's
-// point (not such a mesh).
+// body. Throws Error when the mesh is not such a body: no rings within
+// half_length, a triangle that does not face away from its slab's point,
+// or slabs that do not fill the solid (checked by their volume).
 RawMesh ConeToAxis(const TetMesh& solid, double half_length);
 
 // True when text looks like a generator spec "shape:key=value:..." with a

@@ -92,10 +92,10 @@ constexpr double kBytesPerProxyTet = 600.0;
 constexpr double kConvexHullMargin = 1.02;
 
 // Round geoms (spheres, ellipsoids, capsules and cylinders) narrower than
-// this many times the gaps between a deformable's surface vertices get a proxy (<contact
-// autoproxy>), as the narrower geoms of every kind do: met as a geom, one
-// sinks in between the vertices and rolls over them as over a bed of
-// nails. Measured (tests/scenarios/ball_test.cc), a 10 cm rigid ball
+// this many times the gaps between a deformable's surface vertices get a
+// proxy (<contact autoproxy>), as the narrower geoms of every kind do: met
+// as a geom, one sinks in between the vertices and rolls over them as over
+// a bed of nails. Measured (tests/scenarios/ball_test.cc), a 10 cm rigid ball
 // rolling down a 20 degree slope on a stiff slab whose surface gaps are
 // 1/1.4, 1/2.8 and 1/4.2 of its width (and 1/7.1, on a slab of 144k
 // tetrahedra): met as a geom, 0.35, 0.70, 0.81 (0.90) of a rigid ball's
@@ -118,8 +118,11 @@ constexpr double kRoundProxyCellsAcross = 12.0;
 // and with a solid level-2 one (1280 tetrahedra each), 0.02 with none. A
 // capsule or a cylinder is made fewer cells across (at least 3) while its
 // coned mesh would take more than this many tetrahedra (its layers are as
-// thick as its cells are wide: a rod 40 radii long is made 5 across).
-constexpr double kMaxConedProxyTets = 20000.0;
+// thick as its cells are wide: a rod 40 radii long is made 4 across, one
+// 5 radii long 12). A rod narrower than the gaps inside a soft body much
+// larger than the world (a fuzzed scene) took 221 ms a step at 20,000,
+// 75 at 8000, 22 with a 3-cell solid proxy.
+constexpr double kMaxConedProxyTets = 8000.0;
 
 // A geom is passed over for a deformable whose box lies farther than this
 // (m) beyond the geom's bounding sphere or above its plane: room for the

@@ -204,7 +204,8 @@ TEST(Generators, ASurfaceConedToAPointFillsTheSameSolid) {
 // capsule's caps, r); a mesh that is not such a body is an error: a
 // torus's (its inner side faces the axis), a sphere's (its rings, taken
 // below a "half-length" within it, are not a cylinder's: its slabs do not
-// meet, and hold less than the sphere).
+// meet, and hold less than the sphere), one with no ring within the
+// half-length.
 TEST(Generators, ACapsulesOrCylindersSurfaceConedToItsAxisFillsTheSameSolid) {
   struct Case {
     const char* spec;
@@ -233,15 +234,21 @@ TEST(Generators, ACapsulesOrCylindersSurfaceConedToItsAxisFillsTheSameSolid) {
     }
     EXPECT_LT(longest, c.longest);
   }
-  const std::pair<const char*, const char*> wrong[] = {
-      {"torus:size=0.1,0.03:res=2", "does not face away from the point it is coned to"},
-      {"sphere:size=0.05:res=2", "coned to its axis, it holds"},
+  struct Wrong {
+    const char* spec;
+    double half_length;
+    const char* what;
   };
-  for (const auto& [spec, what] : wrong) {
+  const Wrong wrong[] = {
+      {"torus:size=0.1,0.03:res=2", 0.049, "does not face away from the point it is coned to"},
+      {"sphere:size=0.05:res=2", 0.049, "coned to its axis, it holds"},
+      {"capsule:size=0.1,0.1:res=4", -1.0, "no rings along the axis within the half-length"},
+  };
+  for (const auto& [spec, half_length, what] : wrong) {
     SCOPED_TRACE(spec);
     const TetMesh mesh = TetMesh::Build(MakeShape(spec));
     try {
-      ConeToAxis(mesh, 0.049);
+      ConeToAxis(mesh, half_length);
       ADD_FAILURE() << "no error";
     } catch (const Error& e) {
       EXPECT_NE(std::string(e.what()).find(what), std::string::npos) << e.what();

@@ -583,16 +583,16 @@ TEST(GeomShape, ProxiesAreMadeForGeomsNarrowerThanTheVertexSpacingAndRoundOnesNe
   // wide, each with 8 n side triangles and, between two slabs, a ring of
   // 4 n edges, two tetrahedra each; the drum's ends 2 n^2 triangles each, 3
   // layers; the bar's 28 layers, its caps 2 n^2 + 8 n c triangles each, c =
-  // 6 layers of cells; the rod, 0.4 m long, 7 cells across and 140 layers,
-  // c = 4, where 8 would take more than 20,000)
+  // 6 layers of cells; the rod, 0.4 m long, 4 cells across and 80 layers,
+  // c = 2, where 5 would take more than 8000)
   auto coned = [](int n, int layers, int rings, int ends) {
     return 8 * n * layers + 8 * n * rings + ends;
   };
   EXPECT_EQ(coarse->made_proxies()[0].num_tets, 1280);
   EXPECT_EQ(coarse->made_proxies()[1].num_tets, coned(12, 3, 2, 2 * 2 * 144));
   EXPECT_EQ(coarse->made_proxies()[2].num_tets, coned(12, 28, 29, 2 * (2 * 144 + 8 * 12 * 6)));
-  EXPECT_EQ(coarse->made_proxies()[4].num_tets, coned(7, 140, 141, 2 * (2 * 49 + 8 * 7 * 4)));
-  EXPECT_LE(coarse->made_proxies()[4].num_tets, 20000);
+  EXPECT_EQ(coarse->made_proxies()[4].num_tets, coned(4, 80, 81, 2 * (2 * 16 + 8 * 4 * 2)));
+  EXPECT_LE(coarse->made_proxies()[4].num_tets, 8000);
   std::unique_ptr<World> narrow = load(3, "narrow");
   EXPECT_EQ(names(*narrow), "pebble rod ");
   EXPECT_EQ(warnings(*narrow), "");
