@@ -515,11 +515,10 @@ TEST(GeomShape, PassageWidthIsTheSecondSmallestExtent) {
 // gaps between a deformable's surface vertices (a block of 3 cells a
 // side: 4.7 cm, the cells' diagonals), and round ones up to 8 times as
 // wide (spheres, ellipsoids, capsules and cylinders; autoproxy "true", the
-// default; "narrow": only the narrower), that
-// meet deformables and have no <rigidtet> (which a mesh geom may have too:
-// its convex hull). With autoproxy off, each narrower one is warned of
-// instead (a wider round one is not: it cannot pass through); a finer block
-// makes fewer.
+// default; "narrow": only the narrower), that meet deformables and have no
+// <rigidtet> (which a mesh geom may have too: its convex hull). With autoproxy off, each narrower
+// one is warned of instead (a wider round one is not: it cannot pass through); a finer block makes
+// fewer.
 TEST(GeomShape, ProxiesAreMadeForGeomsNarrowerThanTheVertexSpacingAndRoundOnesNearIt) {
   TempDir dir("tetcosim_geom_shape");
   auto load = [&](int resolution, const std::string& auto_proxies) {

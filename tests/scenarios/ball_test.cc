@@ -11,8 +11,8 @@
 // speed). These test friction's torque, not only its force (the blocks of
 // friction_test.cc do not turn), on a MuJoCo plane, on the tetrahedral
 // proxy of a static box and on a stiff pinned deformable slab. Then a
-// rigid ball on a coarse slab, met as a geom and given a proxy; last, the
-// soft ball's bounce.
+// rigid ball and a rigid capsule on a coarse slab, met as geoms and given
+// proxies; last, the soft ball's bounce.
 //
 // The backward-Euler step takes the contact forces of the step's end at
 // the vertices' places at its start (a step changes a body's angular
