@@ -150,6 +150,18 @@ int Layers(const std::string& description, double length, double cell, double te
   return static_cast<int>(layers);
 }
 
+// Starts a mesh of `solid`'s surface (ConeToPoint, ConeToAxis): its
+// surface vertices, in order, as out's first points. Returns each of the
+// solid's vertices' point in out (-1 for an inner one).
+std::vector<int> AddSurfaceVertices(const TetMesh& solid, MeshBuilder& out) {
+  std::vector<int> index(solid.num_vertices(), -1);
+  for (int v : solid.surface_vertices()) {
+    index[v] = static_cast<int>(out.points.size());
+    out.points.push_back(solid.positions().row(v).transpose());
+  }
+  return index;
+}
+
 }  // namespace
 
 RawMesh MakeBox(const Eigen::Vector3d& half_size, const Eigen::Vector3i& cells, int tets_per_cell) {
@@ -338,14 +350,9 @@ RawMesh MakeCapsule(double radius, double half_length, int resolution) {
 }
 
 RawMesh ConeToPoint(const TetMesh& solid, const Eigen::Vector3d& apex) {
-  const std::vector<int>& surface_vertices = solid.surface_vertices();
   const Triangles& surface = solid.surface();
-  std::vector<int> index(solid.num_vertices(), -1);
   MeshBuilder out;
-  for (int v : surface_vertices) {
-    index[v] = static_cast<int>(out.points.size());
-    out.points.push_back(solid.positions().row(v).transpose());
-  }
+  const std::vector<int> index = AddSurfaceVertices(solid, out);
   const int centre = static_cast<int>(out.points.size());
   out.points.push_back(apex);
   out.tets.reserve(surface.rows());
@@ -396,11 +403,7 @@ RawMesh ConeToAxis(const TetMesh& solid, double half_length) {
     return std::clamp(static_cast<int>(above - levels.begin()) - 1, 0, num_between - 1);
   };
   MeshBuilder out;
-  std::vector<int> index(solid.num_vertices(), -1);
-  for (int v : solid.surface_vertices()) {
-    index[v] = static_cast<int>(out.points.size());
-    out.points.push_back(x.row(v).transpose());
-  }
+  const std::vector<int> index = AddSurfaceVertices(solid, out);
   std::vector<int> apex(num_between + (caps ? 2 : 0));
   for (int s = 0; s < num_between; ++s) {
     apex[s] = static_cast<int>(out.points.size());

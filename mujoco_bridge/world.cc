@@ -393,9 +393,9 @@ std::optional<RawMesh> MadeProxyMesh(const mjModel* m, int geom, double spacing,
     case mjGEOM_ELLIPSOID: {
       const double radius = std::max({size[0], size[1], size[2]});
       const double level = std::ceil(std::log2(1.05 * radius / spacing));
-      const RawMesh solid =
-          GeomMesh(m, geom, static_cast<int>(std::clamp(level, 1.0, 3.0)), line, path);
-      return ConeToPoint(TetMesh::Build(solid), Eigen::Vector3d::Zero());
+      const int sphere_level = static_cast<int>(std::clamp(level, 1.0, 3.0));
+      return ConeToPoint(TetMesh::Build(GeomMesh(m, geom, sphere_level, line, path)),
+                         Eigen::Vector3d::Zero());
     }
     case mjGEOM_CAPSULE:
     case mjGEOM_CYLINDER: {
